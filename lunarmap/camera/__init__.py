@@ -1,0 +1,5 @@
+"""Rigorous sensor models: interior orientation, distortion, frame and line-scan cameras."""
+
+from .interior import InteriorOrientation
+
+__all__ = ["InteriorOrientation"]
