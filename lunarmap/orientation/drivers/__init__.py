@@ -1,0 +1,66 @@
+"""Instrument drivers: image label + loaded kernels -> :class:`~lunarmap.orientation.isd.ImageSupport`.
+
+Drivers are the last step that talks to SPICE. :func:`image_support` is the
+one-call entry point::
+
+    from lunarmap.orientation.drivers import image_support
+    isd = image_support("M103595705LE_isis3.lbl", "lro_nac.tm")
+    eo = isd.exterior_orientation()
+"""
+
+from __future__ import annotations
+
+import os
+
+from ...errors import UnknownInstrumentError
+from ...labels import Label, load_label
+from ...spice import KernelSet, kernels
+from ..isd import ImageSupport
+from .base import Driver
+from .clementine import ClementineUvvisDriver
+from .generic import GenericDriver
+from .kaguya import KaguyaTcDriver
+from .lro import LroNacDriver
+
+__all__ = ["Driver", "LroNacDriver", "ClementineUvvisDriver", "KaguyaTcDriver", "GenericDriver",
+           "DRIVERS", "driver_for", "image_support"]
+
+#: Drivers in the order they are asked; the generic IK-configured driver is last.
+DRIVERS: list[type[Driver]] = [LroNacDriver, ClementineUvvisDriver, KaguyaTcDriver, GenericDriver]
+
+
+def driver_for(label: Label, source: str = "") -> Driver:
+    """The driver that claims ``label``.
+
+    Raises
+    ------
+    UnknownInstrumentError
+        No driver recognises the label (instrument, spacecraft and label type are named).
+    """
+    for cls in DRIVERS:
+        if cls.matches(label):
+            return cls(label, source)
+    inst = label.find("InstrumentId") or label.find("INSTRUMENT_ID") or "?"
+    host = label.find("SpacecraftName") or label.find("MISSION_NAME") or "?"
+    raise UnknownInstrumentError(f"no lunarmap driver for instrument {inst!r} of {host!r} in label {source}; "
+                                 f"known: {', '.join(c.name for c in DRIVERS)}")
+
+
+def image_support(label: str | os.PathLike[str] | Label, kernel_set: KernelSet | str | os.PathLike[str]) -> ImageSupport:
+    """Read a label, load the kernels (under the SPICE lock) and sample the image's geometry.
+
+    Parameters
+    ----------
+    label : path-like or Label
+        ISIS cube / label file or PDS3 label, or an already parsed label.
+    kernel_set : KernelSet or path-like
+        A kernel set or the path of a meta-kernel.
+    """
+    source = "" if isinstance(label, Label) else os.fspath(label)
+    lab = label if isinstance(label, Label) else load_label(label)
+    kset = kernel_set if isinstance(kernel_set, KernelSet) else KernelSet.from_metakernel(kernel_set)
+    driver = driver_for(lab, source)
+    with kernels(kset):
+        isd = driver.image_support()
+    isd.provenance["kernels"] = kset.source or ";".join(kset.paths)
+    return isd

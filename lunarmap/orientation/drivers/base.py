@@ -1,0 +1,225 @@
+"""The shared part of every instrument driver: label + kernels -> :class:`ImageSupport`.
+
+A driver answers a handful of instrument-specific questions (which NAIF ids,
+which image times, which aberration correction, which interior orientation);
+:meth:`Driver.image_support` then samples SPICE once, in one locked pass, the way
+USGS ALE does (see the shared kernel README, section 5), and returns pure data.
+
+Drivers are selected explicitly by :func:`lunarmap.orientation.drivers.driver_for`
+(each driver says whether a label is its own); there is no try-every-driver
+fallback that would hide the real error.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+
+from ...errors import LabelError, UnknownInstrumentError
+from ...labels import Label
+from ...spice import queries as q
+from ..isd import ImageSupport, RotationTable, line_scan_epochs
+from ..rotation import matrix_to_quat
+
+__all__ = ["Driver"]
+
+MOON = 301
+
+
+def _bool(v: Any) -> Any:
+    if isinstance(v, str) and v.upper() in ("TRUE", "FALSE"):
+        return v.upper() == "TRUE"
+    return v
+
+
+def _unlist(v: list) -> Any:
+    v = [_bool(x) for x in v]
+    return v[0] if len(v) == 1 else v
+
+
+class Driver:
+    """Base driver. Subclasses set the class attributes and override the hooks.
+
+    Parameters
+    ----------
+    label : Label
+        The parsed image label.
+    source : str
+        Label file path, for messages.
+    """
+
+    #: human-readable name of what the driver handles
+    name: ClassVar[str] = "generic"
+    #: ``"frame"`` or ``"linescan"``; generic drivers decide per image
+    model: ClassVar[str] = "frame"
+    isis_camera_version: ClassVar[int] = 1
+
+    def __init__(self, label: Label, source: str = "") -> None:
+        self.label = label
+        self.source = source
+
+    # -- selection ------------------------------------------------------------
+    @classmethod
+    def matches(cls, label: Label) -> bool:
+        """Whether this driver handles ``label``."""
+        return False
+
+    # -- label access -----------------------------------------------------------
+    def group(self, name: str) -> Label:
+        """An ISIS label group (``IsisCube/<name>``) or the PDS3 label itself."""
+        cube = self.label.get("IsisCube")
+        if cube is not None:
+            g = cube.get(name)
+            if g is None:
+                raise LabelError(f"label {self.source} has no {name} group")
+            return g
+        return self.label
+
+    def keyword(self, group: str, key: str) -> Any:
+        g = self.group(group)
+        if key not in g:
+            raise LabelError(f"label {self.source} lacks {group}/{key}")
+        return g[key]
+
+    @property
+    def image_lines(self) -> int:
+        cube = self.label.get("IsisCube")
+        if cube is not None:
+            return int(cube["Core"]["Dimensions"]["Lines"])
+        return int(self.label["IMAGE"]["LINES"])
+
+    @property
+    def image_samples(self) -> int:
+        cube = self.label.get("IsisCube")
+        if cube is not None:
+            return int(cube["Core"]["Dimensions"]["Samples"])
+        return int(self.label["IMAGE"]["LINE_SAMPLES"])
+
+    # -- hooks (SPICE ids and times) ---------------------------------------------
+    @property
+    def ikid(self) -> int:
+        """NAIF instrument id (keys of the IK: ``INS<ikid>_*``)."""
+        return int(self.keyword("Kernels", "NaifFrameCode"))
+
+    @property
+    def sensor_frame(self) -> int:
+        """NAIF id of the sensor frame (look vectors are defined in it)."""
+        return self.ikid
+
+    @property
+    def spacecraft_id(self) -> int:
+        return q.body_code(str(self.platform_name))
+
+    @property
+    def target_id(self) -> int:
+        return MOON
+
+    @property
+    def platform_name(self) -> str:
+        return str(self.keyword("Instrument", "SpacecraftName"))
+
+    @property
+    def sensor_name(self) -> str:
+        return str(self.keyword("Instrument", "InstrumentId"))
+
+    def image_times(self) -> tuple[float, float, float]:
+        """``(start, stop, line_period)`` in ET seconds (line period 0 for frames)."""
+        raise NotImplementedError
+
+    def sample_times(self) -> np.ndarray:
+        start, stop, _ = self.image_times()
+        if self.model == "linescan":
+            return line_scan_epochs(start, stop, self.image_lines)
+        return np.array([(start + stop) / 2.0])
+
+    def position_correction(self) -> str:
+        """Aberration correction of the sensor position (``"NONE"``, ``"LT+S"``, ``"SURFACE"``)."""
+        kw = f"INS{self.ikid}_LIGHTTIME_CORRECTION"
+        corr = str(q.pool_values(kw)[0]) if q.pool_has(kw) else "LT+S"
+        if corr != "NONE" and q.pool_has(f"INS{self.ikid}_LT_SURFACE_CORRECT"):
+            if str(q.pool_values(f"INS{self.ikid}_LT_SURFACE_CORRECT")[0]).upper() == "TRUE":
+                return "SURFACE"
+        return corr
+
+    def ik(self, key: str, default: Any = None) -> Any:
+        """An IK keyword of this instrument (scalar or list), ``default`` when absent."""
+        name = f"INS{self.ikid}_{key}"
+        if not q.pool_has(name):
+            if default is None:
+                raise UnknownInstrumentError(f"IK keyword {name} is not in the loaded kernels "
+                                             f"(instrument {self.ikid}, label {self.source})")
+            return default
+        return _unlist(q.pool_values(name))
+
+    # -- interior orientation hooks ------------------------------------------------
+    def interior(self) -> dict[str, Any]:
+        """Focal length, focal2pixel, detector centre/start, summing, distortion (ALE keys)."""
+        return {
+            "focal_length": float(self.ik("FOCAL_LENGTH")),
+            "focal2pixel_lines": [float(v) for v in self.ik("ITRANSL")],
+            "focal2pixel_samples": [float(v) for v in self.ik("ITRANSS")],
+            "detector_center_line": float(self.ik("BORESIGHT_LINE")),
+            "detector_center_sample": float(self.ik("BORESIGHT_SAMPLE")),
+            "starting_detector_line": 0.0,
+            "starting_detector_sample": 0.0,
+            "line_summing": 1,
+            "sample_summing": 1,
+            "optical_distortion": {"radial": {"coefficients": [0.0, 0.0, 0.0]}},
+        }
+
+    def naif_keywords(self, body_frame_code: int) -> dict[str, Any]:
+        """ALE's ``naif_keywords``: body, instrument and sensor-frame kernel-pool variables."""
+        radii = q.body_radii(self.target_id)
+        out: dict[str, Any] = {f"BODY{self.target_id}_RADII": radii.tolist(),
+                               "BODY_FRAME_CODE": body_frame_code, "BODY_CODE": self.target_id}
+        prefixes = (f"BODY{self.target_id}_", f"FRAME_{self.ikid}_", f"TKFRAME_{self.ikid}_",
+                    f"CK_{self.ikid}_", f"INS{self.ikid}_")
+        pool = q.instrument_keywords(self.ikid, extra_prefixes=prefixes[:-1])
+        out.update({k: _unlist(v) for k, v in pool.items()})
+        return out
+
+    # -- the one SPICE pass ---------------------------------------------------------
+    def image_support(self) -> ImageSupport:
+        """Sample SPICE for this image. The caller holds the kernels loaded."""
+        start, stop, line_period = self.image_times()
+        times = self.sample_times()
+        center = (start + stop) / 2.0
+        sc, body = self.spacecraft_id, self.target_id
+        radii = q.body_radii(body)
+
+        corr = self.position_correction()
+        if corr == "SURFACE":
+            state = q.surface_lt_states(sc, body, times, "J2000", (radii[0] + radii[2]) / 2.0)
+        else:
+            state = q.states(sc, times, "J2000", corr, body)
+        sun_times = times[[0, -1]] if times.size > 1 else times.copy()
+        sun = q.states(10, sun_times, "J2000", "LT+S", body)
+
+        body_code, body_frame = q.body_frame(body)
+        pointing = self._rotation_table(self.sensor_frame, times)
+        body_rot = self._rotation_table(body_code, times)
+        xf = q.state_rotations("J2000", body_frame, times)
+
+        io = self.interior()
+        return ImageSupport(
+            model=self.model, name_platform=self.platform_name, name_sensor=self.sensor_name,
+            image_lines=self.image_lines, image_samples=self.image_samples,
+            center_ephemeris_time=center, starting_ephemeris_time=start, line_period=line_period,
+            times=times, positions=state[:, :3], velocities=state[:, 3:], pointing=pointing,
+            body_rotation=body_rot, body_state_rotations=xf, sun_times=sun_times,
+            sun_positions=sun[:, :3], sun_velocities=sun[:, 3:], radii=radii, body_frame=body_frame,
+            naif_keywords=self.naif_keywords(body_code), isis_camera_version=self.isis_camera_version,
+            provenance={"driver": self.name, "label": self.source, "position_correction": corr},
+            **io,
+        )
+
+    @staticmethod
+    def _rotation_table(frame: int, times: np.ndarray) -> RotationTable:
+        constant, dependent = q.frame_trace(frame, float(times[0]))
+        source = dependent[0]
+        m = q.rotations("J2000", source, times)
+        av = q.angular_velocities("J2000", source, times)
+        const = q.rotations(source, constant[0], times[:1])[0]
+        return RotationTable(time_dependent_frames=dependent, times=times, quaternions=matrix_to_quat(m),
+                             angular_velocities=av, constant_frames=constant, constant_rotation=const)

@@ -1,0 +1,258 @@
+"""Image support data (ISD): everything a sensor model needs, sampled once.
+
+:class:`ImageSupport` holds, for one image, the sampled SPICE geometry in the
+frames and units of USGS ALE's ISDs (J2000, km, km/s, rad/s, SPICE
+quaternions) plus the interior orientation. It writes the JSON document that
+USGS CSM (usgscsm) and ALE users know (:meth:`ImageSupport.to_ale_dict`), and it
+derives the body-fixed :class:`~lunarmap.orientation.exterior.ExteriorOrientation`
+(metres) that lunarmap's camera models use (:meth:`ImageSupport.exterior_orientation`).
+
+The body rotation is kept at *every* pointing epoch internally (the ISD
+itself, like ALE's, lists only the first and last) so that the body-fixed
+trajectory is exact at each sample.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import InvalidInputError
+from .exterior import ExteriorOrientation
+from .rotation import matrix_to_quat, quat_to_matrix
+
+__all__ = ["RotationTable", "ImageSupport", "line_scan_epochs", "write_json_atomic"]
+
+J2000 = 1
+
+
+def line_scan_epochs(start: float, stop: float, lines: int) -> NDArray[np.float64]:
+    """ALE's sampling grid for line scanners: every 10th line, at least 100 samples."""
+    n = lines // 10 + 1
+    n = lines + 1 if n < 100 else n
+    return np.linspace(start, stop, n)
+
+
+@dataclass
+class RotationTable:
+    """A time-dependent rotation J2000 -> ``time_dependent_frames[0]`` plus a constant one.
+
+    Parameters
+    ----------
+    time_dependent_frames : list of int
+        NAIF frame ids from the first time-dependent frame down to J2000 (ISIS order).
+    times : ndarray (n,)
+        Ephemeris times, s.
+    quaternions : ndarray (n, 4)
+        SPICE ``(w, x, y, z)`` of ``pxform('J2000', time_dependent_frames[0], et)``.
+    angular_velocities : ndarray (n, 3)
+        rad/s, as ``xf2rav`` returns them.
+    constant_frames : list of int
+        From the destination frame (sensor or body-fixed) to ``time_dependent_frames[0]``.
+    constant_rotation : ndarray (3, 3)
+        ``pxform(time_dependent_frames[0], constant_frames[0])``.
+    """
+
+    time_dependent_frames: list[int]
+    times: NDArray[np.float64]
+    quaternions: NDArray[np.float64]
+    angular_velocities: NDArray[np.float64]
+    constant_frames: list[int]
+    constant_rotation: NDArray[np.float64]
+
+    def matrices(self) -> NDArray[np.float64]:
+        """J2000 -> destination-frame rotation matrices, shape (n, 3, 3)."""
+        return self.constant_rotation @ quat_to_matrix(self.quaternions)
+
+    def to_dict(self, every: slice = slice(None), always_constant: bool = True) -> dict[str, Any]:
+        t = self.times[every]
+        out: dict[str, Any] = {
+            "time_dependent_frames": list(self.time_dependent_frames),
+            "ck_table_start_time": float(t[0]),
+            "ck_table_end_time": float(t[-1]),
+            "ck_table_original_size": int(t.size),
+            "ephemeris_times": t.tolist(),
+            "quaternions": self.quaternions[every].tolist(),
+            "angular_velocities": self.angular_velocities[every].tolist(),
+        }
+        if always_constant or self.constant_frames[0] != self.time_dependent_frames[0]:
+            out["constant_frames"] = list(self.constant_frames)
+            out["constant_rotation"] = self.constant_rotation.flatten().tolist()
+        out["reference_frame"] = J2000
+        return out
+
+
+@dataclass
+class ImageSupport:
+    """Sampled geometry and camera constants of one image (ALE ISD content).
+
+    Units follow ALE's ISD: km, km/s, seconds of ephemeris time, millimetres in
+    the focal plane. ``model`` is ``"frame"`` or ``"linescan"``.
+    """
+
+    model: str
+    name_platform: str
+    name_sensor: str
+    image_lines: int
+    image_samples: int
+    center_ephemeris_time: float
+    starting_ephemeris_time: float
+    line_period: float  # s per line (0 for framing cameras)
+    times: NDArray[np.float64]
+    positions: NDArray[np.float64]  # km, J2000, sensor w.r.t. body centre
+    velocities: NDArray[np.float64]  # km/s
+    pointing: RotationTable
+    body_rotation: RotationTable  # sampled at self.times
+    body_state_rotations: NDArray[np.float64]  # (n, 6, 6) J2000 -> body-fixed, at self.times
+    sun_times: NDArray[np.float64]
+    sun_positions: NDArray[np.float64]  # km, J2000, Sun w.r.t. body centre
+    sun_velocities: NDArray[np.float64]
+    radii: NDArray[np.float64]  # km
+    body_frame: str
+    focal_length: float
+    focal2pixel_lines: list[float]
+    focal2pixel_samples: list[float]
+    detector_center_line: float
+    detector_center_sample: float
+    starting_detector_line: float
+    starting_detector_sample: float
+    line_summing: int
+    sample_summing: int
+    optical_distortion: dict[str, Any]
+    naif_keywords: dict[str, Any] = field(default_factory=dict)
+    isis_camera_version: int = 1
+    provenance: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.model not in ("frame", "linescan"):
+            raise InvalidInputError(f"unknown sensor model {self.model!r}; use 'frame' or 'linescan'")
+
+    # -- derived quantities ---------------------------------------------------
+    @property
+    def line_scan_rate(self) -> list[list[float]]:
+        """usgscsm's ``[[line, time relative to centre, seconds per line]]``."""
+        return [[0.5, self.starting_ephemeris_time - self.center_ephemeris_time, self.line_period]]
+
+    def sensor_to_body_matrices(self) -> NDArray[np.float64]:
+        """Rotation sensor frame -> body-fixed frame at ``self.times``, (n, 3, 3)."""
+        j2000_to_body = self.body_state_rotations[:, :3, :3]
+        j2000_to_sensor = self.pointing.matrices()
+        return j2000_to_body @ np.transpose(j2000_to_sensor, (0, 2, 1))
+
+    def exterior_orientation(self, epoch: float | None = None) -> ExteriorOrientation:
+        """The body-fixed, metre-based exterior orientation of this image.
+
+        Parameters
+        ----------
+        epoch : float, optional
+            Reference ET for the relative times; defaults to the image start
+            (line scanners) or centre time (framing cameras).
+        """
+        if epoch is None:
+            epoch = self.starting_ephemeris_time if self.model == "linescan" else self.center_ephemeris_time
+        xf = self.body_state_rotations
+        state = np.concatenate([self.positions, self.velocities], axis=1)
+        bf = np.einsum("nij,nj->ni", xf, state) * 1000.0
+        quats = matrix_to_quat(self.sensor_to_body_matrices())
+        # the Sun samples are a subset of the pointing epochs (first and last)
+        idx = np.searchsorted(self.times, self.sun_times).clip(0, self.times.size - 1)
+        sun_bf = np.einsum("nij,nj->ni", xf[idx, :3, :3], self.sun_positions) * 1000.0
+        return ExteriorOrientation(
+            epoch=float(epoch), times=self.times - epoch, positions=bf[:, :3], velocities=bf[:, 3:],
+            quaternions=quats, sun_times=self.sun_times - epoch, sun_positions=sun_bf,
+            body_frame=self.body_frame,
+            attrs={"sensor": self.name_sensor, "platform": self.name_platform, **{
+                k: v for k, v in self.provenance.items() if isinstance(v, (str, int, float))}},
+        )
+
+    # -- output ---------------------------------------------------------------
+    def to_ale_dict(self) -> dict[str, Any]:
+        """The ISD as ALE's ``ale.formatters.formatter.to_isd`` lays it out."""
+        isd: dict[str, Any] = {
+            "isis_camera_version": self.isis_camera_version,
+            "image_lines": int(self.image_lines),
+            "image_samples": int(self.image_samples),
+            "name_platform": self.name_platform,
+            "name_sensor": self.name_sensor,
+            "reference_height": {"maxheight": 1000, "minheight": -1000, "unit": "m"},
+        }
+        if self.model == "linescan":
+            isd["name_model"] = "USGS_ASTRO_LINE_SCANNER_SENSOR_MODEL"
+            isd["interpolation_method"] = "lagrange"
+            isd["line_scan_rate"] = self.line_scan_rate
+            isd["starting_ephemeris_time"] = self.starting_ephemeris_time
+            isd["center_ephemeris_time"] = self.center_ephemeris_time
+        else:
+            isd["name_model"] = "USGS_ASTRO_FRAME_SENSOR_MODEL"
+            isd["center_ephemeris_time"] = self.center_ephemeris_time
+        isd["radii"] = {"semimajor": float(self.radii[0]), "semiminor": float(self.radii[2]), "unit": "km"}
+        ends = [0, self.times.size - 1] if self.times.size > 1 else [0]
+        isd["body_rotation"] = self.body_rotation.to_dict(every=np.array(ends), always_constant=False)  # type: ignore[arg-type]
+        isd["instrument_pointing"] = self.pointing.to_dict()
+        isd["naif_keywords"] = self.naif_keywords
+        isd["detector_sample_summing"] = int(self.sample_summing)
+        isd["detector_line_summing"] = int(self.line_summing)
+        isd["focal_length_model"] = {"focal_length": self.focal_length}
+        isd["detector_center"] = {"line": self.detector_center_line, "sample": self.detector_center_sample}
+        isd["focal2pixel_lines"] = list(self.focal2pixel_lines)
+        isd["focal2pixel_samples"] = list(self.focal2pixel_samples)
+        isd["optical_distortion"] = self.optical_distortion
+        isd["starting_detector_line"] = self.starting_detector_line
+        isd["starting_detector_sample"] = self.starting_detector_sample
+        isd["instrument_position"] = _position_block(self.times, self.positions, self.velocities)
+        isd["sun_position"] = _position_block(self.sun_times, self.sun_positions, self.sun_velocities)
+        if self.provenance:
+            isd["lunarmap"] = self.provenance
+        return _jsonable(isd)
+
+    def write_json(self, path: str | os.PathLike[str]) -> None:
+        """Write :meth:`to_ale_dict` as JSON, atomically (no partial file on failure)."""
+        write_json_atomic(self.to_ale_dict(), path)
+
+
+def _position_block(times: NDArray[np.float64], pos: NDArray[np.float64], vel: NDArray[np.float64]) -> dict[str, Any]:
+    return {
+        "spk_table_start_time": float(times[0]),
+        "spk_table_end_time": float(times[-1]),
+        "spk_table_original_size": int(times.size),
+        "ephemeris_times": times.tolist(),
+        "positions": pos.tolist(),
+        "velocities": vel.tolist(),
+        "reference_frame": J2000,
+    }
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        raise InvalidInputError("ISD holds a non-finite number")
+    return obj
+
+
+def write_json_atomic(data: Any, path: str | os.PathLike[str]) -> None:
+    """Write JSON to ``path`` via a temporary file in the same folder, then rename."""
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=folder)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            json.dump(data, fh, indent=2)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
