@@ -1,0 +1,30 @@
+# Two commands on a fresh machine:
+#   make demo   - create .venv, install lunarmap, write the synthetic mission and print ground points
+#   make test   - create .venv, install lunarmap with test extras, run the test suite
+PYTHON ?= python3
+VENV   ?= .venv
+BIN     = $(VENV)/bin
+
+.PHONY: demo test bench install clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+$(VENV)/.installed: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e ".[test,bench]"
+	touch $@
+
+install: $(VENV)/.installed
+
+demo: install
+	$(BIN)/lunarmap demo --output demo_output
+
+test: install
+	$(BIN)/python -m pytest -q
+
+bench: install
+	$(BIN)/python bench/bench_camera.py
+
+clean:
+	rm -rf $(VENV) demo_output .pytest_cache

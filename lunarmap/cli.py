@@ -1,0 +1,66 @@
+"""The ``lunarmap`` command line.
+
+``lunarmap isd LABEL --kernels META_KERNEL [-o FILE]``
+    write the CSM image support data (ALE ISD layout) of one image.
+``lunarmap demo [--output DIR]``
+    write the synthetic mission and print ground points of its images.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Sequence
+
+from .errors import LunarmapError
+
+__all__ = ["main"]
+
+
+def _cmd_isd(args: argparse.Namespace) -> int:
+    from .orientation.drivers import image_support
+
+    isd = image_support(args.label, args.kernels)
+    if args.output:
+        isd.write_json(args.output)
+        print(f"wrote {args.output}", file=sys.stderr)
+    else:
+        json.dump(isd.to_ale_dict(), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    return 0
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import run_demo
+
+    run_demo(args.output)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="lunarmap", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("isd", help="write the image support data (ALE/CSM ISD JSON) of an image")
+    p.add_argument("label", help="ISIS cube or label, or PDS3 label")
+    p.add_argument("--kernels", "-k", required=True, help="meta-kernel (.tm)")
+    p.add_argument("--output", "-o", help="output JSON file (default: standard output)")
+    p.set_defaults(func=_cmd_isd)
+    d = sub.add_parser("demo", help="synthetic mission: write kernels and images, print ground points")
+    d.add_argument("--output", "-o", default="demo_output", help="folder for the synthetic mission")
+    d.set_defaults(func=_cmd_demo)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``lunarmap`` console script; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args))
+    except LunarmapError as err:
+        print(f"lunarmap: error: {type(err).__name__}: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

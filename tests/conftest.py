@@ -1,0 +1,41 @@
+"""Shared fixtures.
+
+Tests marked ``shared`` read the real kernel sets in ``../shared/data/kernels``
+(beside the checkout). They are skipped, with the reason shown, when that folder
+is absent; on CI it is present, and ``LUNARMAP_REQUIRE_SHARED=1`` (set by
+``.ci/run``) turns a missing folder into a failure instead of a silent skip.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED_KERNELS = Path(os.environ.get("LUNARMAP_SHARED_KERNELS", ROOT.parent / "shared" / "data" / "kernels"))
+
+
+def shared_set(name: str) -> Path:
+    folder = SHARED_KERNELS / name
+    if not folder.is_dir():
+        if os.environ.get("LUNARMAP_REQUIRE_SHARED") == "1":
+            pytest.fail(f"shared kernel set {folder} is required (LUNARMAP_REQUIRE_SHARED=1) but absent")
+        pytest.skip(f"shared kernel set {folder} not present")
+    return folder
+
+
+@pytest.fixture(scope="session")
+def lro_set() -> Path:
+    return shared_set("lro_nac_M103595705LE")
+
+
+@pytest.fixture(scope="session")
+def clementine_set() -> Path:
+    return shared_set("clementine_uvvis_LUA3107H161")
+
+
+@pytest.fixture(scope="session")
+def kaguya_set() -> Path:
+    return shared_set("kaguya_tc_TC1S2B0")
