@@ -1,5 +1,38 @@
 """Rigorous sensor models: interior orientation, distortion, frame and line-scan cameras."""
 
+from .distortion import (
+    DISTORTION_MODELS,
+    Distortion,
+    KaguyaLismDistortion,
+    LroNacDistortion,
+    NoDistortion,
+    RadialDistortion,
+    distortion_from_interior,
+    make_distortion,
+)
+from .frame import FrameCamera, focal_to_image, image_to_focal
+from .geodesy import (
+    enu_basis,
+    lonlat_height_to_xyz,
+    moon_geocentric_crs,
+    moon_geographic_crs,
+    pyproj_lonlat_height_to_xyz,
+    pyproj_xyz_to_lonlat_height,
+    xyz_to_lonlat_height,
+)
 from .interior import InteriorOrientation
+from .intersect import DtmSampler, intersect_dtm, intersect_ellipsoid, intersect_sphere
+from .linescan import LineScanCamera, LineTimes
+from .shape import MOON_RADIUS, MOON_RADIUS_HISTORICAL, Shape
 
-__all__ = ["InteriorOrientation"]
+__all__ = [
+    "InteriorOrientation",
+    "Distortion", "NoDistortion", "LroNacDistortion", "RadialDistortion", "KaguyaLismDistortion",
+    "DISTORTION_MODELS", "make_distortion", "distortion_from_interior",
+    "Shape", "MOON_RADIUS", "MOON_RADIUS_HISTORICAL",
+    "xyz_to_lonlat_height", "lonlat_height_to_xyz", "pyproj_xyz_to_lonlat_height",
+    "pyproj_lonlat_height_to_xyz", "moon_geographic_crs", "moon_geocentric_crs", "enu_basis",
+    "intersect_ellipsoid", "intersect_sphere", "intersect_dtm", "DtmSampler",
+    "FrameCamera", "image_to_focal", "focal_to_image",
+    "LineScanCamera", "LineTimes",
+]

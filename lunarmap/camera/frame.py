@@ -1,0 +1,316 @@
+"""Frame (framing) camera model, and the pixel <-> focal-plane arithmetic of all cameras.
+
+Image to ground
+---------------
+``(line, sample)`` (CSM pixel convention, centre of the first pixel at
+(0.5, 0.5)) -> detector coordinates (starting detector line/sample and
+summing) -> distorted focal plane (inverse of ALE's ``focal2pixel`` affine
+about the detector centre) -> undistorted focal plane (the distortion model)
+-> look vector ``(x, y, f)`` in the sensor frame -> rotated to body-fixed by
+the exterior orientation -> intersected with the body shape (at a height) or
+a DTM.
+
+:func:`image_to_focal` and :func:`focal_to_image` repeat usgscsm's
+``computeDistortedFocalPlaneCoordinates`` and ``computePixel``
+(``src/Utilities.cpp``) operation for operation, with ALE's
+``focal2pixel_lines`` / ``focal2pixel_samples`` in the role of usgscsm's
+``iTransL`` / ``iTransS`` and ``detector_center_*`` in that of
+``m_ccdCenter`` / ``m_detector*Origin``; so our pixel coordinates equal CSM's.
+The look vector keeps the NAIF instrument-frame convention (boresight +z,
+look ``(x, y, f)``) rather than usgscsm's ``(-x, -y, -f)`` camera frame,
+because our quaternions rotate NAIF instrument-frame vectors.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import xarray as xr
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import GeometryError, InvalidInputError
+from ..orientation.exterior import ExteriorOrientation
+from .distortion import Distortion, distortion_from_interior
+from .interior import InteriorOrientation
+from .intersect import DtmSampler, OnMiss, intersect_dtm, intersect_ellipsoid
+from .shape import Shape
+
+__all__ = ["FrameCamera", "image_to_focal", "focal_to_image"]
+
+Array = NDArray[np.float64]
+
+
+def image_to_focal(interior: InteriorOrientation, line: ArrayLike, sample: ArrayLike
+                   ) -> tuple[Array, Array]:
+    """Distorted focal-plane coordinates of image coordinates (usgscsm ``computeDistortedFocalPlaneCoordinates``).
+
+    Parameters
+    ----------
+    interior : InteriorOrientation
+        Camera constants.
+    line, sample : array_like
+        Image coordinates, pixels, CSM convention. Line-scan cameras pass
+        ``line = 0`` (the image line is time, not a detector position).
+
+    Returns
+    -------
+    (ndarray, ndarray)
+        Distorted focal-plane ``x, y``, millimetres.
+    """
+    io = interior
+    line, sample = np.broadcast_arrays(np.asarray(line, dtype=float), np.asarray(sample, dtype=float))
+    det_sample = sample * io.sample_summing + io.starting_detector_sample
+    det_line = line * io.line_summing + io.starting_detector_line
+    il, is_ = io.focal2pixel_lines, io.focal2pixel_samples
+    t1 = det_line - io.detector_center_line - il[0]
+    t2 = det_sample - io.detector_center_sample - is_[0]
+    det = il[1] * is_[2] - il[2] * is_[1]
+    x = (is_[2] * t1 - il[2] * t2) / det
+    y = (-is_[1] * t1 + il[1] * t2) / det
+    return x, y
+
+
+def focal_to_image(interior: InteriorOrientation, x: ArrayLike, y: ArrayLike) -> tuple[Array, Array]:
+    """Image coordinates of distorted focal-plane coordinates (usgscsm ``computePixel``).
+
+    Parameters
+    ----------
+    interior : InteriorOrientation
+        Camera constants.
+    x, y : array_like
+        Distorted focal-plane coordinates, millimetres.
+
+    Returns
+    -------
+    (ndarray, ndarray)
+        ``line, sample``, pixels, CSM convention.
+    """
+    io = interior
+    x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+    il, is_ = io.focal2pixel_lines, io.focal2pixel_samples
+    centered_sample = is_[0] + is_[1] * x + is_[2] * y
+    centered_line = il[0] + il[1] * x + il[2] * y
+    sample = (centered_sample + io.detector_center_sample - io.starting_detector_sample) / io.sample_summing
+    line = (centered_line + io.detector_center_line - io.starting_detector_line) / io.line_summing
+    return line, sample
+
+
+def _finite_pixels(line: ArrayLike, sample: ArrayLike) -> tuple[Array, Array]:
+    line, sample = np.broadcast_arrays(np.asarray(line, dtype=float), np.asarray(sample, dtype=float))
+    if not (np.all(np.isfinite(line)) and np.all(np.isfinite(sample))):
+        n = int(np.count_nonzero(~(np.isfinite(line) & np.isfinite(sample))))
+        raise InvalidInputError(f"{n} image coordinate(s) are NaN or infinite")
+    return line, sample
+
+
+def _finite_xyz(xyz: ArrayLike) -> Array:
+    xyz = np.asarray(xyz, dtype=float)
+    if xyz.shape[-1:] != (3,):
+        raise InvalidInputError(f"ground points must have shape (..., 3), got {xyz.shape}")
+    if not np.all(np.isfinite(xyz)):
+        n = int(np.count_nonzero(~np.all(np.isfinite(xyz), axis=-1)))
+        raise InvalidInputError(f"{n} ground point(s) hold NaN or infinite coordinates")
+    return xyz
+
+
+def _check_ground_on_miss(on_miss: str) -> None:
+    if on_miss not in ("raise", "nan"):
+        raise InvalidInputError(f"on_miss must be 'raise' or 'nan', got {on_miss!r}")
+
+
+class _CameraModel:
+    """What frame and line-scan cameras share: rays, intersections, bookkeeping."""
+
+    interior: InteriorOrientation
+    eo: ExteriorOrientation
+    shape: Shape
+    distortion: Distortion
+
+    def __init__(self, interior: InteriorOrientation, eo: ExteriorOrientation, shape: Shape | None) -> None:
+        if not isinstance(interior, InteriorOrientation):
+            raise InvalidInputError(f"interior must be an InteriorOrientation, got {type(interior).__name__}")
+        if not isinstance(eo, ExteriorOrientation):
+            raise InvalidInputError(f"eo must be an ExteriorOrientation, got {type(eo).__name__}")
+        self.interior = interior
+        self.eo = eo
+        self.shape = Shape.moon() if shape is None else shape
+        self.distortion = distortion_from_interior(interior)
+        self._dtm_cache: tuple[Any, DtmSampler] | None = None
+
+    # -- to be provided by subclasses -----------------------------------
+    def _rays(self, line: Array, sample: Array) -> tuple[Array, Array]:
+        """Origins (m) and unit directions, body-fixed, of finite pixel arrays."""
+        raise NotImplementedError
+
+    # -- shared -----------------------------------------------------------
+    def _sensor_look(self, line: Array, sample: Array) -> Array:
+        """Undistorted look vectors ``(x, y, f)`` in the sensor frame, mm."""
+        x, y = image_to_focal(self.interior, line, sample)
+        ux, uy = self.distortion.undistort(x, y)
+        return np.stack([ux, uy, np.full_like(ux, self.interior.focal_length)], axis=-1)
+
+    def look_vector(self, line: ArrayLike, sample: ArrayLike) -> Array:
+        """Unit look vectors, body-fixed, of image coordinates.
+
+        Parameters
+        ----------
+        line, sample : array_like
+            Image coordinates, pixels (CSM convention).
+
+        Returns
+        -------
+        ndarray, shape (..., 3)
+            Unit vectors from the sensor towards the scene, body-fixed.
+        """
+        line, sample = _finite_pixels(line, sample)
+        return self._rays(line, sample)[1]
+
+    def _sampler(self, dtm: xr.DataArray | DtmSampler) -> DtmSampler:
+        if isinstance(dtm, DtmSampler):
+            return dtm
+        # Building the sampler copies the grid; cache it for repeated calls on one DTM.
+        if self._dtm_cache is not None and self._dtm_cache[0] is dtm:
+            return self._dtm_cache[1]
+        sampler = DtmSampler(dtm)
+        self._dtm_cache = (dtm, sampler)
+        return sampler
+
+    def image_to_ground(self, line: ArrayLike, sample: ArrayLike, height: ArrayLike = 0.0,
+                        dtm: xr.DataArray | DtmSampler | None = None, on_miss: OnMiss = "raise",
+                        tol: float = 1e-3) -> Array:
+        """Ground points seen at image coordinates.
+
+        Parameters
+        ----------
+        line, sample : array_like
+            Image coordinates, pixels (CSM convention); broadcast together.
+        height : array_like
+            Height above the shape, metres: the ray is intersected with the
+            ellipsoid enlarged by ``height`` (sphere of radius ``R + height``).
+            Ignored when ``dtm`` is given.
+        dtm : xarray.DataArray or DtmSampler, optional
+            Heights (metres above ``shape.reference_radius``) on a ``lat`` x
+            ``lon`` grid, degrees.
+        on_miss : {"raise", "nan"}
+            Rays missing the body (or DTM): raise
+            :class:`~lunarmap.errors.NoIntersectionError`, or return NaN rows.
+        tol : float
+            DTM convergence threshold on height, metres.
+
+        Returns
+        -------
+        ndarray, shape (..., 3)
+            Body-fixed ground points, metres.
+
+        Raises
+        ------
+        InvalidInputError
+            NaN or infinite image coordinates or heights.
+        NoIntersectionError
+            A ray misses and ``on_miss="raise"``.
+        ConvergenceError
+            The DTM intersection does not converge.
+        """
+        line, sample = _finite_pixels(line, sample)
+        origins, dirs = self._rays(line, sample)
+        if dtm is not None:
+            return intersect_dtm(origins, dirs, self._sampler(dtm), self.shape.reference_radius,
+                                 tol=tol, on_miss=on_miss)
+        h = np.asarray(height, dtype=float)
+        if not np.all(np.isfinite(h)):
+            raise InvalidInputError("heights hold NaN or infinite values")
+        h = np.broadcast_to(h, line.shape)
+        return intersect_ellipsoid(origins, dirs, self.shape.axes_at_height(h), on_miss=on_miss)
+
+    def _project(self, v: Array) -> tuple[Array, Array, Array]:
+        """Image coordinates of sensor-frame vectors; also the validity mask (in front)."""
+        in_front = v[..., 2] > 0.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = self.interior.focal_length
+            ux = np.where(in_front, f * v[..., 0] / v[..., 2], np.nan)
+            uy = np.where(in_front, f * v[..., 1] / v[..., 2], np.nan)
+        dx, dy = self.distortion.distort(ux, uy)
+        line, sample = focal_to_image(self.interior, dx, dy)
+        return line, sample, in_front & np.isfinite(line) & np.isfinite(sample)
+
+    def _finish_ground_to_image(self, line: Array, sample: Array, ok: NDArray[np.bool_], within_image: bool,
+                                on_miss: str) -> tuple[Array, Array]:
+        if within_image:
+            ok = ok & (line >= 0.0) & (line <= self.interior.n_lines) \
+                & (sample >= 0.0) & (sample <= self.interior.n_samples)
+        if on_miss == "raise" and not np.all(ok):
+            n = int(np.count_nonzero(~ok))
+            raise GeometryError(f"{n} of {ok.size} ground point(s) are not seen by "
+                                f"{self.interior.name or 'the image'} (behind the sensor"
+                                f"{' or outside the image' if within_image else ''})")
+        return np.where(ok, line, np.nan), np.where(ok, sample, np.nan)
+
+
+class FrameCamera(_CameraModel):
+    """A framing camera: one exposure time for the whole image.
+
+    Parameters
+    ----------
+    interior : InteriorOrientation
+        Camera constants and distortion.
+    eo : ExteriorOrientation
+        Sensor position and attitude; evaluated once at ``time``.
+    shape : Shape, optional
+        Body shape; the 1737.4 km Moon sphere by default.
+    time : float, optional
+        Exposure time, seconds relative to ``eo.epoch``; defaults to
+        ``eo.times[0]`` (a framing image's EO normally holds one sample).
+    """
+
+    def __init__(self, interior: InteriorOrientation, eo: ExteriorOrientation, shape: Shape | None = None,
+                 time: float | None = None) -> None:
+        super().__init__(interior, eo, shape)
+        self.time = float(eo.times[0] if time is None else time)
+        if not np.isfinite(self.time):
+            raise InvalidInputError("frame camera exposure time must be finite")
+        self._position = eo.position_at(self.time)
+        self._rotation = eo.rotation_at(self.time)
+
+    def __repr__(self) -> str:
+        return f"FrameCamera({self.interior.name or 'unnamed'}, t={self.time:.6f} s, {self.distortion!r})"
+
+    def sensor_position(self, line: ArrayLike, sample: ArrayLike) -> Array:
+        """Sensor position (metres, body-fixed) for image coordinates; shape ``(..., 3)``."""
+        line, sample = _finite_pixels(line, sample)
+        return np.broadcast_to(self._position, line.shape + (3,)).copy()
+
+    def _rays(self, line: Array, sample: Array) -> tuple[Array, Array]:
+        look = self._sensor_look(line, sample) @ self._rotation.T
+        look /= np.linalg.norm(look, axis=-1, keepdims=True)
+        return np.broadcast_to(self._position, look.shape).copy(), look
+
+    def ground_to_image(self, xyz: ArrayLike, on_miss: OnMiss = "nan",
+                        within_image: bool = True) -> tuple[Array, Array]:
+        """Image coordinates of body-fixed ground points.
+
+        Parameters
+        ----------
+        xyz : array_like, shape (..., 3)
+            Ground points, metres, body-fixed.
+        on_miss : {"nan", "raise"}
+            Points not seen (behind the sensor, outside the image when
+            ``within_image``, or beyond the distortion model's domain): NaN
+            coordinates, or :class:`~lunarmap.errors.GeometryError`.
+        within_image : bool
+            Treat coordinates outside ``[0, n_lines] x [0, n_samples]`` as not seen.
+
+        Returns
+        -------
+        line, sample : ndarray, shape (...)
+            Image coordinates, pixels (CSM convention).
+
+        Notes
+        -----
+        Occlusion by the body or by terrain is not tested.
+        """
+        _check_ground_on_miss(on_miss)
+        xyz = _finite_xyz(xyz)
+        v = (xyz - self._position) @ self._rotation  # R^T (G - P), sensor frame
+        line, sample, ok = self._project(v)
+        return self._finish_ground_to_image(line, sample, ok, within_image, on_miss)
