@@ -40,6 +40,11 @@ __all__ = ["FrameCamera", "image_to_focal", "focal_to_image"]
 
 Array = NDArray[np.float64]
 
+# Depth below the reference shape that no terrain reaches (the deepest lunar
+# point is about 9.1 km below 1737.4 km): sight lines crossing the shape
+# shrunk by this much are blocked by the body.
+_OCCLUSION_DEPTH = 20_000.0
+
 
 def image_to_focal(interior: InteriorOrientation, line: ArrayLike, sample: ArrayLike
                    ) -> tuple[Array, Array]:
@@ -234,15 +239,35 @@ class _CameraModel:
         line, sample = focal_to_image(self.interior, dx, dy)
         return line, sample, in_front & np.isfinite(line) & np.isfinite(sample)
 
+    def _occluded(self, sensor: Array, ground: Array) -> NDArray[np.bool_]:
+        """True where the segment sensor -> ground crosses the body's deep interior.
+
+        The body is the shape shrunk by ``_OCCLUSION_DEPTH`` (deeper than any
+        lunar terrain), so points on or below the surface on the visible
+        hemisphere are never flagged while points on the far side are.
+        """
+        axes = np.maximum(self.shape.axes - _OCCLUSION_DEPTH, 0.5 * self.shape.axes)
+        o = sensor / axes
+        d = (ground - sensor) / axes
+        a = np.einsum("...i,...i->...", d, d)
+        b = np.einsum("...i,...i->...", o, d)
+        c = np.einsum("...i,...i->...", o, o) - 1.0
+        disc = b * b - a * c
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s_near = (-b - np.sqrt(disc)) / a
+        return (disc > 0.0) & (c > 0.0) & (s_near > 0.0) & (s_near < 1.0)
+
     def _finish_ground_to_image(self, line: Array, sample: Array, ok: NDArray[np.bool_], within_image: bool,
                                 on_miss: str) -> tuple[Array, Array]:
         if within_image:
-            ok = ok & (line >= 0.0) & (line <= self.interior.n_lines) \
-                & (sample >= 0.0) & (sample <= self.interior.n_samples)
+            # a hair of tolerance so that points on the image edge survive round-off
+            tol = 1e-6
+            ok = ok & (line >= -tol) & (line <= self.interior.n_lines + tol) \
+                & (sample >= -tol) & (sample <= self.interior.n_samples + tol)
         if on_miss == "raise" and not np.all(ok):
             n = int(np.count_nonzero(~ok))
             raise GeometryError(f"{n} of {ok.size} ground point(s) are not seen by "
-                                f"{self.interior.name or 'the image'} (behind the sensor"
+                                f"{self.interior.name or 'the image'} (behind the sensor or the body"
                                 f"{' or outside the image' if within_image else ''})")
         return np.where(ok, line, np.nan), np.where(ok, sample, np.nan)
 
@@ -294,9 +319,9 @@ class FrameCamera(_CameraModel):
         xyz : array_like, shape (..., 3)
             Ground points, metres, body-fixed.
         on_miss : {"nan", "raise"}
-            Points not seen (behind the sensor, outside the image when
-            ``within_image``, or beyond the distortion model's domain): NaN
-            coordinates, or :class:`~lunarmap.errors.GeometryError`.
+            Points not seen (behind the sensor, hidden by the body, outside
+            the image when ``within_image``, or beyond the distortion model's
+            domain): NaN coordinates, or :class:`~lunarmap.errors.GeometryError`.
         within_image : bool
             Treat coordinates outside ``[0, n_lines] x [0, n_samples]`` as not seen.
 
@@ -307,10 +332,12 @@ class FrameCamera(_CameraModel):
 
         Notes
         -----
-        Occlusion by the body or by terrain is not tested.
+        A point counts as hidden by the body when the sight line crosses the
+        shape shrunk by 20 km; occlusion by terrain is not tested.
         """
         _check_ground_on_miss(on_miss)
         xyz = _finite_xyz(xyz)
         v = (xyz - self._position) @ self._rotation  # R^T (G - P), sensor frame
         line, sample, ok = self._project(v)
+        ok &= ~self._occluded(self._position, xyz)
         return self._finish_ground_to_image(line, sample, ok, within_image, on_miss)

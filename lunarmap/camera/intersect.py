@@ -302,6 +302,7 @@ def intersect_dtm(origins: ArrayLike, directions: ArrayLike, dtm: xr.DataArray |
         stall = np.isfinite(fp) & (np.abs(f) > 0.5 * np.abs(fp))
         outside = ~((new > lo[active]) & (new < hi[active]))
         new = np.where(outside | stall, mid, new)
+        new = np.where(f == 0.0, ha, new)
         done = (np.abs(new - ha) < tol) | (f == 0.0) | (hi[active] - lo[active] < tol)
         done &= ~bad
         conv = active[done]

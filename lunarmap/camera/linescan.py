@@ -373,6 +373,12 @@ class LineScanCamera(_CameraModel):
         line[idx] = lin
         sample[idx] = smp
         ok[idx] = val & np.isfinite(lin)
+        # Body occlusion needs only a coarse sensor position: the table's.
+        vis = np.flatnonzero(ok)
+        if vis.size:
+            s = np.clip((line[vis] - tab["line0"]) / tab["step"], 0, tab["n"] - 1)
+            sensor = tab["table"][np.round(s).astype(np.intp), :3]
+            ok[vis[self._occluded(sensor, g[vis])]] = False
         return line, sample, ok
 
     def ground_to_image(self, xyz: ArrayLike, on_miss: OnMiss = "nan",
@@ -388,8 +394,10 @@ class LineScanCamera(_CameraModel):
             :class:`~lunarmap.errors.GeometryError`. A point is not seen when
             no exposure plane within the searched lines (the image plus a 5 %
             margin, within EO coverage) contains it in front of the sensor,
-            when it lies outside ``[0, n_lines] x [0, n_samples]`` (only with
-            ``within_image``), or beyond the distortion model's domain.
+            when the body hides it (sight line through the shape shrunk by
+            20 km), when it lies outside ``[0, n_lines] x [0, n_samples]``
+            (only with ``within_image``), or beyond the distortion model's
+            domain.
         within_image : bool
             Treat coordinates outside the image as not seen.
 
@@ -410,7 +418,7 @@ class LineScanCamera(_CameraModel):
 
         Notes
         -----
-        Occlusion by the body or by terrain is not tested.
+        Occlusion by terrain is not tested.
         """
         _check_ground_on_miss(on_miss)
         xyz = _finite_xyz(xyz)
