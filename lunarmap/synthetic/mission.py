@@ -221,6 +221,16 @@ class SimMission:
         v_tan = v_ground - np.dot(v_ground, rhat) * rhat
         return float(rn - MOON_RADIUS_KM), float(np.linalg.norm(v_tan) * MOON_RADIUS_KM / rn)
 
+    def tick_aligned(self, et: float) -> float:
+        """The clock tick (1/65536 s) nearest to ``et``, as ET.
+
+        Image start times sit on ticks so that the label's
+        ``SpacecraftClockStartCount`` is exact (ticks are binary fractions,
+        so the sum is exact in double precision near 8e8 s).
+        """
+        ticks = round((et - self.sclk_zero_et) * textkernels.SCLK_MODULI[1])
+        return self.sclk_zero_et + ticks / textkernels.SCLK_MODULI[1]
+
     def ck_grid(self) -> NDArray[np.float64]:
         """The CK record epochs, ET."""
         n = int(round((self.end_et - self.start_et) / CK_STEP))
@@ -410,11 +420,14 @@ def _image_records(mission: SimMission, d: Path) -> tuple[dict[str, Any], dict[s
     lsk, sclk = d / ids.KERNEL_FILES[0], d / ids.KERNEL_FILES[1]
     with SPICE_LOCK, loaded_temporarily([lsk, sclk]), spice_errors("synthetic image times"):
         for im in mission.images:
-            start_utc = spiceypy.et2utc(im.planned_start_et, "ISOC", 3)
-            start_et = spiceypy.str2et(start_utc)
-            stop_et = start_et + im.duration
-            stop_utc = spiceypy.et2utc(stop_et, "ISOC", 3)
+            start_et = mission.tick_aligned(im.planned_start_et)
             sclk_start = spiceypy.sce2s(ids.SCLK_ID, start_et)
+            if abs(spiceypy.scs2e(ids.SCLK_ID, sclk_start) - start_et) > 1e-7:
+                raise RuntimeError(f"{im.name}: clock string {sclk_start} does not reproduce ET {start_et}")
+            # microseconds: StartTime is within 0.5 us of the exact clock count
+            start_utc = spiceypy.et2utc(start_et, "ISOC", 6)
+            stop_et = start_et + im.duration
+            stop_utc = spiceypy.et2utc(stop_et, "ISOC", 6)
             center = start_et + 0.5 * im.duration
             lat, lon = mission.sub_spacecraft(np.asarray(center))
             flipped = bool(mission.attitude.flipped(np.asarray(center)))
@@ -427,6 +440,7 @@ def _image_records(mission: SimMission, d: Path) -> tuple[dict[str, Any], dict[s
                 "samples": im.samples,
                 "lines": im.lines,
                 "start_time_utc": start_utc,
+                # exact: the clock count's ET (StartTime is rounded to the microsecond)
                 "start_et": start_et,
                 "center_et": center,
                 "stop_et": stop_et,
@@ -440,12 +454,14 @@ def _image_records(mission: SimMission, d: Path) -> tuple[dict[str, Any], dict[s
             }
             if im.line_time is not None:
                 line_ms = round(im.line_time * 1000.0, 6)
+                rec["line_time_ms"] = line_ms
                 rec["line_time_s"] = line_ms / 1000.0
                 label = isis_label(samples=im.samples, lines=im.lines, spacecraft_name=ids.SPACECRAFT_NAME,
                                    instrument_id=im.camera.name, start_time=start_utc, stop_time=stop_utc,
                                    sclk_start=sclk_start, naif_frame_code=im.camera.naif_id,
                                    line_time_ms=line_ms)
             else:
+                rec["exposure_ms"] = float(im.exposure) * 1000.0
                 rec["exposure_s"] = float(im.exposure)
                 label = isis_label(samples=im.samples, lines=im.lines, spacecraft_name=ids.SPACECRAFT_NAME,
                                    instrument_id=im.camera.name, start_time=start_utc, stop_time=stop_utc,
