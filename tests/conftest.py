@@ -39,3 +39,11 @@ def clementine_set() -> Path:
 @pytest.fixture(scope="session")
 def kaguya_set() -> Path:
     return shared_set("kaguya_tc_TC1S2B0")
+
+
+@pytest.fixture(scope="session")
+def sim_mission(tmp_path_factory) -> Path:
+    """The synthetic mission written once per test session; returns its meta-kernel."""
+    from lunarmap.synthetic import write_mission
+
+    return write_mission(tmp_path_factory.mktemp("sim_mission"))

@@ -22,7 +22,7 @@ import threading
 from typing import Iterator
 
 import spiceypy
-from spiceypy.utils.exceptions import SpiceyError
+from spiceypy.utils.exceptions import NotFoundError, SpiceyError
 
 from ..errors import KernelCoverageError, MissingKernelError, SpiceError
 from .kernelset import KernelSet
@@ -61,6 +61,8 @@ def spice_errors(context: str) -> Iterator[None]:
     """
     try:
         yield
+    except NotFoundError as err:
+        raise KernelCoverageError(f"{context}: not found in the loaded kernels ({err})") from err
     except SpiceyError as err:
         code = _short(err)
         detail = (getattr(err, "long", "") or str(err)).strip()

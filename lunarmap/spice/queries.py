@@ -204,8 +204,7 @@ def frame_trace(frame: str | int, et: float) -> tuple[list[int], list[int]]:
 def pool_has(name: str) -> bool:
     """Whether the kernel pool defines variable ``name``."""
     with SPICE_LOCK:
-        n, typ = spiceypy.dtpool(name)
-    return bool(n)
+        return _dtpool(name)[0]
 
 
 def pool_values(name: str) -> list[float] | list[str]:

@@ -179,9 +179,18 @@ class Driver:
         out.update({k: _unlist(v) for k, v in pool.items()})
         return out
 
+    def check_instrument(self) -> None:
+        """Raise :class:`UnknownInstrumentError` unless the kernels describe this instrument."""
+        ikid = self.ikid
+        if not q.pool_has(f"INS{ikid}_FOCAL_LENGTH"):
+            raise UnknownInstrumentError(
+                f"instrument id {ikid} (label {self.source}) is unknown to the loaded kernels: "
+                f"no INS{ikid}_FOCAL_LENGTH; is its IK in the meta-kernel?")
+
     # -- the one SPICE pass ---------------------------------------------------------
     def image_support(self) -> ImageSupport:
         """Sample SPICE for this image. The caller holds the kernels loaded."""
+        self.check_instrument()
         start, stop, line_period = self.image_times()
         times = self.sample_times()
         center = (start + stop) / 2.0

@@ -1,0 +1,70 @@
+"""Sensor models from image support data.
+
+:func:`camera_from_isd` turns an :class:`~lunarmap.orientation.isd.ImageSupport`
+(what a driver sampled from SPICE) into a :class:`FrameCamera` or
+:class:`LineScanCamera`: the ALE -> usgscsm seam, inside one library.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..orientation.isd import ImageSupport
+from .frame import FrameCamera
+from .interior import InteriorOrientation
+from .linescan import LineScanCamera, LineTimes
+from .shape import Shape
+
+__all__ = ["camera_from_isd", "interior_from_isd", "shape_from_isd"]
+
+
+def interior_from_isd(isd: ImageSupport, distortion: bool = True) -> InteriorOrientation:
+    """Interior orientation of an image; ``distortion=False`` drops the distortion model."""
+    model, coeffs = next(iter(isd.optical_distortion.items())) if isd.optical_distortion else ("none", {})
+    if not distortion:
+        model, coeffs = "none", {}
+    return InteriorOrientation(
+        focal_length=float(isd.focal_length),
+        focal2pixel_lines=tuple(float(v) for v in isd.focal2pixel_lines),  # type: ignore[arg-type]
+        focal2pixel_samples=tuple(float(v) for v in isd.focal2pixel_samples),  # type: ignore[arg-type]
+        detector_center_line=float(isd.detector_center_line),
+        detector_center_sample=float(isd.detector_center_sample),
+        n_lines=int(isd.image_lines), n_samples=int(isd.image_samples),
+        starting_detector_line=float(isd.starting_detector_line),
+        starting_detector_sample=float(isd.starting_detector_sample),
+        line_summing=int(isd.line_summing), sample_summing=int(isd.sample_summing),
+        distortion_model=model, distortion_coefficients=dict(coeffs),
+        pixel_pitch=float(abs(1.0 / isd.focal2pixel_samples[2])) if isd.focal2pixel_samples[2] else float("nan"),
+        name=isd.name_sensor,
+    )
+
+
+def shape_from_isd(isd: ImageSupport, radius: float | None = None) -> Shape:
+    """The body shape of the ISD's radii (km -> m), or a sphere of ``radius`` metres."""
+    if radius is not None:
+        return Shape.sphere(float(radius))
+    a, b, c = (np.asarray(isd.radii, dtype=float) * 1000.0).tolist()
+    return Shape.sphere(a) if a == b == c else Shape.ellipsoid(a, b, c)
+
+
+def camera_from_isd(isd: ImageSupport, shape: Shape | None = None,
+                    distortion: bool = True) -> FrameCamera | LineScanCamera:
+    """The rigorous sensor model of an image.
+
+    Parameters
+    ----------
+    isd : ImageSupport
+        From :func:`lunarmap.orientation.drivers.image_support`.
+    shape : Shape, optional
+        Body shape; the ISD's radii by default.
+    distortion : bool
+        ``False`` builds the model without lens distortion (for comparisons
+        with SPICE's pinhole ``sincpt``).
+    """
+    interior = interior_from_isd(isd, distortion=distortion)
+    eo = isd.exterior_orientation()
+    shape = shape_from_isd(isd) if shape is None else shape
+    if isd.model == "frame":
+        return FrameCamera(interior, eo, shape, time=isd.center_ephemeris_time - eo.epoch)
+    times = LineTimes.uniform(isd.starting_ephemeris_time - eo.epoch, isd.line_period)
+    return LineScanCamera(interior, eo, shape, line_times=times)
