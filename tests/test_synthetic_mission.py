@@ -12,7 +12,8 @@ import lunarmap.synthetic as sim
 from lunarmap.labels import load_label
 from lunarmap.spice import SPICE_LOCK, KernelSet, kernels
 from lunarmap.synthetic.bodies import MOON_RADIUS_KM, j2000_to_iau_moon, moon_state_ssb, sun_state_ssb
-from lunarmap.synthetic.mission import CK_STEP, SPK_STEP, metakernel_text
+from lunarmap.synthetic.mission import CK_STEP, SPK_STEP
+from lunarmap.synthetic.writing import metakernel_text
 
 ROOT = Path(__file__).resolve().parents[1]
 TICK = 1.0 / 65536.0  # s, one clock tick
@@ -261,3 +262,18 @@ def test_same_seed_gives_identical_files_other_seed_differs(written, tmp_path):
     other = sim.build_mission(1)
     assert other.nac_angles_deg != sim.build_mission(0).nac_angles_deg
     assert other.attitude.wobble_phase != sim.build_mission(0).attitude.wobble_phase
+
+
+def test_failed_write_leaves_no_partial_set(tmp_path, monkeypatch):
+    import lunarmap.synthetic.writing as writing
+
+    def broken(*args, **kwargs):
+        raise OSError("simulated disk failure after the kernels were written")
+
+    monkeypatch.setattr(writing, "_image_records", broken)
+    (tmp_path / "keep.txt").write_text("unrelated")
+    with pytest.raises(OSError, match="simulated"):
+        sim.write_mission(tmp_path, seed=0)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.txt"]
+    with SPICE_LOCK:
+        assert spiceypy.ktotal("ALL") == 0

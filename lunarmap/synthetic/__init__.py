@@ -11,7 +11,8 @@ from .ids import (BUS_FRAME, BUS_FRAME_ID, FRAME_CAMERA_FRAME, FRAME_CAMERA_ID, 
                   IMAGE_NAMES, INERTIAL_FRAME, KERNEL_FILES, KW_CAMERA_TYPE, KW_DISTORTION_MODEL,
                   KW_LIGHTTIME_CORRECTION, MANIFEST_NAME, METAKERNEL_NAME, MOON_FRAME, MOON_ID, NAC_FRAME,
                   NAC_ID, NAC_NAME, SCLK_ID, SPACECRAFT_ID, SPACECRAFT_NAME, SSB_ID, SUN_ID)
-from .mission import ImagePlan, SimMission, build_mission, load_manifest, write_mission
+from .mission import ImagePlan, SimMission, build_mission
+from .writing import load_manifest, write_mission
 
 __all__ = [
     "write_mission", "build_mission", "load_manifest", "SimMission", "ImagePlan", "CameraSpec", "NAC",

@@ -93,16 +93,15 @@ class CameraSpec:
 
     def fov_corners(self) -> NDArray[np.float64]:
         """Four FOV corner vectors ``(x/f, y/f, 1)`` at the detector's outer pixel edges, shape (4, 3)."""
-        top, bottom = (self.boresight_line, self.boresight_line) if self.lines == 1 else (0.5, self.lines + 0.5)
-        s = np.array([0.5, self.samples + 0.5, self.samples + 0.5, 0.5])
         if self.lines == 1:
-            # a single detector line: half a pixel on either side of the boresight line
-            ln = np.array([top - 0.5, top - 0.5, bottom + 0.5, bottom + 0.5])
+            # a single detector line: half a pixel either side of the boresight line
+            top, bottom = self.boresight_line - 0.5, self.boresight_line + 0.5
         else:
-            ln = np.array([top, top, bottom, bottom])
+            top, bottom = 0.5, self.lines + 0.5
+        s = np.array([0.5, self.samples + 0.5, self.samples + 0.5, 0.5])
+        ln = np.array([top, top, bottom, bottom])
         xy = self.focal_plane(s, ln) / self.focal_length_mm
         return np.column_stack([xy, np.ones(4)])
-
 
 _NAC_PITCH = 0.007
 #: LRO NAC-Left-like pushbroom: the detector line runs along the frame's +y axis
