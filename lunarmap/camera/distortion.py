@@ -14,6 +14,9 @@ Each published model defines one direction in closed form; the other is
 solved here in closed form where one exists or by vectorised Newton
 iteration to below 1e-12 mm, so that both directions are exact inverses of
 each other (the ISIS/usgscsm fixed-point loops stop at 1e-6 to 1e-10 mm).
+Where the model has no inverse (far outside the field of view, beyond the
+turning point of a polynomial) the result is NaN, never an exception:
+callers such as ``ground_to_image`` treat such points as not imaged.
 
 Models
 ------
@@ -69,7 +72,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import ConvergenceError, InvalidInputError
+from ..errors import InvalidInputError
 
 __all__ = [
     "Distortion",
@@ -214,19 +217,24 @@ class RadialDistortion(Distortion):
         ru = np.hypot(x, y)
         # Solve g(r) = r (1 - k0 - k1 r^2 - k2 r^4) - ru = 0 for the distorted radius.
         r = ru.copy()
+        big = np.zeros(ru.shape, dtype=bool)
         for _ in range(_NEWTON_MAXITER):
             r2 = r * r
             g = r * (1.0 - (k0 + r2 * (k1 + r2 * k2))) - ru
             dg = 1.0 - k0 - 3.0 * k1 * r2 - 5.0 * k2 * r2 * r2
-            with np.errstate(divide="ignore", invalid="ignore"):
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
                 step = g / dg
             r = r - step
-            if not np.any(np.abs(step) > _NEWTON_TOL * np.maximum(1.0, ru)):
+            big = np.abs(step) > _NEWTON_TOL * np.maximum(1.0, ru)
+            if not np.any(big):
                 break
-        else:
-            _raise_unconverged("radial distortion", np.abs(step) > _NEWTON_TOL * np.maximum(1.0, ru))
+        # Beyond the turning point of r (1 - dr/r) there is no distorted
+        # radius (Newton wanders or lands on the folded branch): no solution.
+        r2 = r * r
+        fold = (1.0 - k0 - 3.0 * k1 * r2 - 5.0 * k2 * r2 * r2) <= 0.0
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(ru > 0.0, r / ru, 1.0 / (1.0 - k0))
+        ratio = np.where(big | fold | (r < 0.0), np.nan, ratio)
         return x * ratio, y * ratio
 
     def __repr__(self) -> str:
@@ -278,42 +286,37 @@ class KaguyaLismDistortion(Distortion):
         dx = ux - self.boresight_x - self.a[0]
         dy = uy - self.boresight_y - self.b[0]
         for _ in range(_NEWTON_MAXITER):
-            r = np.hypot(dx, dy)
-            fx = dx + self._poly(self.a, r) + self.boresight_x - ux
-            fy = dy + self._poly(self.b, r) + self.boresight_y - uy
-            with np.errstate(divide="ignore", invalid="ignore"):
-                cx = np.where(r > 0.0, dx / r, 0.0)
-                cy = np.where(r > 0.0, dy / r, 0.0)
-            pa = self._dpoly(self.a, r)
-            pb = self._dpoly(self.b, r)
-            j11 = 1.0 + pa * cx
-            j12 = pa * cy
-            j21 = pb * cx
-            j22 = 1.0 + pb * cy
-            det = j11 * j22 - j12 * j21
-            with np.errstate(divide="ignore", invalid="ignore"):
-                sx = (j22 * fx - j12 * fy) / det
-                sy = (j11 * fy - j21 * fx) / det
-            dx = dx - sx
-            dy = dy - sy
-            big = np.maximum(np.abs(sx), np.abs(sy)) > _NEWTON_TOL * np.maximum(1.0, r)
+            with np.errstate(all="ignore"):  # diverging points end as NaN below
+                dx, dy, big = self._newton_step(ux, uy, dx, dy)
             if not np.any(big):
                 break
-        else:
-            _raise_unconverged("kaguyalism distortion", big)
-        return dx, dy
+        # No convergence means no preimage near the field of view.
+        return np.where(big, np.nan, dx), np.where(big, np.nan, dy)
+
+    def _newton_step(self, ux: Array, uy: Array, dx: Array, dy: Array
+                     ) -> tuple[Array, Array, NDArray[np.bool_]]:
+        """One 2-D Newton step of ``undistort(d) = u``; also whether it was still large."""
+        r = np.hypot(dx, dy)
+        fx = dx + self._poly(self.a, r) + self.boresight_x - ux
+        fy = dy + self._poly(self.b, r) + self.boresight_y - uy
+        # d r / d(dx, dy) = (dx, dy) / r; the a1*r term has no derivative at r = 0, use 0
+        cx = np.where(r > 0.0, dx / r, 0.0)
+        cy = np.where(r > 0.0, dy / r, 0.0)
+        pa = self._dpoly(self.a, r)
+        pb = self._dpoly(self.b, r)
+        j11 = 1.0 + pa * cx
+        j12 = pa * cy
+        j21 = pb * cx
+        j22 = 1.0 + pb * cy
+        det = j11 * j22 - j12 * j21
+        sx = (j22 * fx - j12 * fy) / det
+        sy = (j11 * fy - j21 * fx) / det
+        big = np.maximum(np.abs(sx), np.abs(sy)) > _NEWTON_TOL * np.maximum(1.0, r)
+        return dx - sx, dy - sy, big
 
     def __repr__(self) -> str:
         return (f"KaguyaLismDistortion(x={self.a!r}, y={self.b!r}, boresight_x={self.boresight_x!r}, "
                 f"boresight_y={self.boresight_y!r})")
-
-
-def _raise_unconverged(what: str, mask: NDArray[np.bool_]) -> None:
-    # NaN inputs never converge but are the caller's business (they stay NaN).
-    n = int(np.count_nonzero(mask))
-    if n:
-        raise ConvergenceError(f"inverting the {what} did not converge for {n} point(s) "
-                               f"in {_NEWTON_MAXITER} Newton iterations")
 
 
 def _coefficients(block: Mapping[str, Any]) -> list[float]:

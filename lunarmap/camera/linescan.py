@@ -63,6 +63,7 @@ _LINE_TOL = 1e-7        # line convergence of the exact final step
 _SECANT_TOL = 1e-9      # line convergence of the table-based secant iteration
 _MAX_SECANT = 40
 _MAX_EXACT = 4
+_COARSE_LINES = 2048.0  # lines per bracketing cell (between 12 and 64 cells)
 
 
 class LineTimes:
@@ -240,12 +241,12 @@ class LineScanCamera(_CameraModel):
         rot = self.eo.rotation_at(t)
         # Row layout [P (3), R^T row-major (9)] so one gather fetches a node.
         table = np.concatenate([pos, np.swapaxes(rot, -1, -2).reshape(-1, 9)], axis=1)
-        n_coarse = int(np.clip((n_nodes - 1) / 1024.0, 16, 64))
+        n_coarse = int(np.clip((n_nodes - 1) / _COARSE_LINES, 12, 64))
         coarse_idx = np.unique(np.round(np.linspace(0, n_nodes - 1, n_coarse + 1)).astype(np.intp))
         normals = np.einsum("kij,j->ki", rot[coarse_idx], self._plane_normal)
         offsets = np.einsum("ki,ki->k", normals, pos[coarse_idx])
         self._table = {
-            "line0": lo, "step": step, "n": n_nodes, "table": table,
+            "line0": lo, "step": step, "n": n_nodes, "table": table, "delta": np.diff(table, axis=0),
             "coarse_idx": coarse_idx, "normals": normals, "offsets": offsets,
         }
         return self._table
@@ -264,7 +265,7 @@ class LineScanCamera(_CameraModel):
         s = (line - tab["line0"]) / tab["step"]
         i = np.clip(np.floor(s).astype(np.intp), 0, tab["n"] - 2)
         u = (s - i)[:, None]
-        row = table[i] * (1.0 - u) + table[i + 1] * u
+        row = table[i] + u * tab["delta"][i]
         return self._residual_from(row[:, :3], row[:, 3:], g)
 
     def _residual_exact(self, g: Array, line: Array) -> tuple[Array, Array, Array]:
@@ -316,7 +317,10 @@ class LineScanCamera(_CameraModel):
         x1, r1 = b.copy(), rb.copy()
         act = np.arange(idx.size)
         xl = np.empty(idx.size)
-        slope = np.empty(idx.size)
+        # dr/dL for the exact Newton steps below: the latest secant slope over
+        # a pair of iterates far enough apart (>= 1e-4 line) not to be
+        # dominated by round-off; the final pair may be a float ulp apart.
+        slope = (rb - ra) / (b - a)
         for _ in range(_MAX_SECANT):
             with np.errstate(divide="ignore", invalid="ignore"):
                 x2 = x1[act] - r1[act] * (x1[act] - x0[act]) / (r1[act] - r0[act])
@@ -332,6 +336,7 @@ class LineScanCamera(_CameraModel):
             dx = np.abs(x2 - x1[act])
             with np.errstate(divide="ignore", invalid="ignore"):
                 sl = (r2 - r1[act]) / (x2 - x1[act])
+            slope[act] = np.where((dx >= 1e-4) & np.isfinite(sl) & (sl != 0.0), sl, slope[act])
             x0[act], r0[act] = x1[act], r1[act]
             x1[act], r1[act] = x2, r2
             # keep the bracket: replace the end whose residual has r2's sign
@@ -344,16 +349,11 @@ class LineScanCamera(_CameraModel):
             # converged even when float spacing stops x from moving.
             done = (dx < _SECANT_TOL) | (np.abs(r2) < 0.1 * _SECANT_TOL) | ~np.isfinite(r2)
             xl[act[done]] = x2[done]
-            slope[act[done]] = sl[done]
             act = act[~done]
             if act.size == 0:
                 break
         if act.size:
             raise ConvergenceError(f"ground_to_image: line search did not converge for {act.size} point(s)")
-        # Fall back to the bracket's slope where the last secant slope is degenerate.
-        with np.errstate(divide="ignore", invalid="ignore"):
-            bracket_slope = (rb - ra) / (b - a)
-        slope = np.where(np.isfinite(slope) & (slope != 0.0), slope, bracket_slope)
         # 3. exact Newton corrections with the EO's own interpolation.
         lin, smp, val = xl, np.full(idx.size, np.nan), np.zeros(idx.size, dtype=bool)
         act = np.arange(idx.size)
@@ -363,6 +363,8 @@ class LineScanCamera(_CameraModel):
             val[act] = v
             with np.errstate(divide="ignore", invalid="ignore"):
                 dl = r / slope[act]
+            v &= np.isfinite(dl)
+            val[act] = v
             lin[act] = lin[act] - np.where(v, dl, 0.0)
             act = act[v & (np.abs(dl) >= _LINE_TOL)]
             if act.size == 0:
