@@ -155,3 +155,12 @@ def test_nan_pixel(cameras):
         cam.image_to_ground([np.nan], [10.0])
     with pytest.raises(InvalidInputError):
         cam.ground_to_image(np.array([[np.nan, 0.0, 0.0]]))
+
+
+def test_synthetic_cameras_carry_their_ik_distortion(cameras):
+    assert cameras["sim_nac_equator"][0].optical_distortion == {"lrolrocnac": {"coefficients": [1.81e-05]}}
+    assert cameras["sim_frame_a"][0].optical_distortion == {"radial": {"coefficients": [0.0, -2.42e-05, 0.0]}}
+    # and the distorted model really differs from the pinhole one away from the centre
+    _, pinhole, distorted = cameras["sim_frame_a"]
+    d = np.linalg.norm(pinhole.image_to_ground([5.0], [5.0]) - distorted.image_to_ground([5.0], [5.0]))
+    assert d > 1.0

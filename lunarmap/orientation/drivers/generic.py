@@ -8,7 +8,7 @@ for line scanners or ``ExposureDuration`` [ms] for framing cameras;
 ``BORESIGHT_LINE``, ``OD_K``) plus three optional lunarmap ones:
 
 ``INS<id>_LUNARMAP_CAMERA_TYPE``       ``'FRAME'`` or ``'LINESCAN'``
-``INS<id>_LUNARMAP_DISTORTION_MODEL``  ``'none'``, ``'radial'`` or ``'lrolrocnac'``
+``INS<id>_LUNARMAP_DISTORTION``  ``'none'``, ``'radial'`` or ``'lrolrocnac'``
 ``INS<id>_LIGHTTIME_CORRECTION``       aberration correction of the position
 
 Boresight keywords are in the ISIS pixel convention (first pixel centre at 1)
@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ...errors import LabelError
+from ...errors import LabelError, UnknownInstrumentError
 from ...labels import Label
 from ...spice import queries as q
 from .base import Driver
@@ -80,12 +80,15 @@ class GenericDriver(Driver):
         io["detector_center_sample"] -= 0.5
         if self.model == "frame":
             io["detector_center_line"] -= 0.5
-        dist = str(self.ik("LUNARMAP_DISTORTION_MODEL", "none")).lower()
+        dist = str(self.ik("LUNARMAP_DISTORTION", "none")).lower()
         if dist == "lrolrocnac":
             k = self.ik("OD_K")
             io["optical_distortion"] = {"lrolrocnac": {"coefficients": [float(k if not isinstance(k, list) else k[0])]}}
         elif dist == "radial":
             io["optical_distortion"] = {"radial": {"coefficients": [float(v) for v in self.ik("OD_K")]}}
-        else:
+        elif dist == "none":
             io["optical_distortion"] = {"radial": {"coefficients": [0.0, 0.0, 0.0]}}
+        else:
+            raise UnknownInstrumentError(f"INS{self.ikid}_LUNARMAP_DISTORTION = {dist!r} is not a distortion model "
+                                         f"lunarmap knows ('none', 'radial', 'lrolrocnac')")
         return io
