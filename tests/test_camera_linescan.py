@@ -190,3 +190,26 @@ def test_eo_must_cover_the_image() -> None:
     cam = LineScanCamera(nac_like_interior(), eo, line_times=(100.0, NAC_LINE_TIME))
     with pytest.raises(InvalidInputError, match="cover"):
         cam.ground_to_image([[R, 0.0, 0.0]])
+
+
+@pytest.mark.parametrize("model,coeffs", [
+    ("radial", {"coefficients": [0.0, 1e-4, 1e-8]}),
+    ("kaguyalism", {"x": [1e-3, 2e-3, -3e-4, 1e-5], "y": [-2e-3, 1e-3, 2e-4, -1e-5],
+                    "boresight_x": 0.01, "boresight_y": -0.02}),
+])
+@pytest.mark.parametrize("flip", [False, True])
+@pytest.mark.parametrize("detector_center_line", [2000.0, -1500.0])
+def test_round_trip_with_distortion_across_the_line(model, coeffs, flip, detector_center_line) -> None:
+    # Distortion that moves the along-track (x) coordinate, with the detector line 10-14 mm off
+    # the principal point: the exposure condition is no longer the undistorted plane used to bracket.
+    import dataclasses
+
+    io = dataclasses.replace(nac_like_interior(), distortion_model=model, distortion_coefficients=coeffs,
+                             detector_center_line=detector_center_line)
+    eo = polar_orbit_eo(lat_center=40.0, flip=flip)
+    cam = LineScanCamera(io, eo, line_times=(T0, NAC_LINE_TIME))
+    rng = np.random.default_rng(5)
+    line = rng.uniform(0, NAC_LINES, 2000)
+    sample = rng.uniform(0, NAC_SAMPLES, 2000)
+    l2, s2 = cam.ground_to_image(cam.image_to_ground(line, sample, height=1000.0))
+    assert np.max(np.abs(l2 - line)) <= 1e-4 and np.max(np.abs(s2 - sample)) <= 1e-4

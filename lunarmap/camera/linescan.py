@@ -62,6 +62,7 @@ _LINE_TOL = 1e-7        # line convergence of the exact final step
 _SECANT_TOL = 1e-9      # line convergence of the table-based secant iteration
 _MAX_SECANT = 40
 _MAX_EXACT = 4
+_MAX_REPAIR = 12
 _COARSE_LINES = 2048.0  # lines per bracketing cell (between 12 and 64 cells)
 
 
@@ -305,16 +306,27 @@ class LineScanCamera(_CameraModel):
         b = line0 + step * cidx[k + 1].astype(float)
         ra, _, va = self._residual_table(tab, gi, a)
         rb, _, vb = self._residual_table(tab, gi, b)
-        # Distortion moves the exact root slightly off the plane's: widen by a cell if needed.
-        redo = ~(va & vb & (np.sign(ra) != np.sign(rb)))
-        if np.any(redo):
-            kk = k[redo]
-            a2 = line0 + step * cidx[np.maximum(kk - 1, 0)].astype(float)
-            b2 = line0 + step * cidx[np.minimum(kk + 2, cidx.size - 1)].astype(float)
-            ra2, _, va2 = self._residual_table(tab, gi[redo], a2)
-            rb2, _, vb2 = self._residual_table(tab, gi[redo], b2)
-            a[redo], b[redo], ra[redo], rb[redo] = a2, b2, ra2, rb2
-            va[redo], vb[redo] = va2, vb2
+        # Distortion moves the exact root off the undistorted plane's, possibly
+        # out of the cell or next to an end where the projection is invalid
+        # (beyond the distortion model's domain): repair those few brackets.
+        line_end = line0 + step * (tab["n"] - 1)
+        for _ in range(_MAX_REPAIR):
+            redo = np.flatnonzero(~(va & vb & (np.sign(ra) != np.sign(rb))))
+            if redo.size == 0:
+                break
+            aa, bb, rra, rrb, vva, vvb = a[redo], b[redo], ra[redo], rb[redo], va[redo], vb[redo]
+            width = bb - aa
+            both = vva & vvb
+            left = both & (np.abs(rra) < np.abs(rrb))   # root lies before a
+            right = both & ~left                           # root lies after b
+            new_a = np.where(left, np.maximum(aa - width, line0), np.where(right, bb, aa))
+            new_b = np.where(left, aa, np.where(right, np.minimum(bb + width, line_end), bb))
+            # an invalid end moves halfway towards the other end
+            new_a = np.where(~vva, 0.5 * (aa + bb), new_a)
+            new_b = np.where(vva & ~vvb, 0.5 * (aa + bb), new_b)
+            a[redo], b[redo] = new_a, new_b
+            ra[redo], _, va[redo] = self._residual_table(tab, gi[redo], new_a)
+            rb[redo], _, vb[redo] = self._residual_table(tab, gi[redo], new_b)
         good = va & vb & (np.sign(ra) != np.sign(rb))
         idx, gi, a, b, ra, rb = idx[good], gi[good], a[good], b[good], ra[good], rb[good]
         if idx.size == 0:
