@@ -24,11 +24,14 @@ A ground point is imaged at the line ``L`` whose exposure geometry puts its
 (distorted) projection on that detector line: ``r(L) = 0`` where ``r`` is the
 image-line coordinate that usgscsm's ``computePixel`` returns for the
 projection at time ``t(L)`` (usgscsm ``groundToImage`` iterates ``L += r(L)``
-from a linear approximation, which diverges when the scan direction is
-reversed). Here, for all points at once:
+from a linear approximation, which assumes ``dr/dL = -1`` and diverges when
+the spacecraft flies the other way relative to the sign of
+``focal2pixel_lines``, e.g. yawed by 180 degrees). Here, for all points at once:
 
-1. the sign of the distance of every point to the exposure planes of a few
-   dozen grid lines (one small matrix product) brackets each point's line;
+1. the sign of the distance of every point to the (undistorted) exposure
+   planes of a few dozen grid lines, one per ~2000 lines (one small matrix
+   product), brackets each point's line; the few brackets that distortion
+   invalidates are shifted or shrunk until ``r`` changes sign across them;
 2. safeguarded secant steps (regula falsi / bisection when a step leaves the
    bracket) on ``r`` evaluated from a per-line table of sensor positions and
    rotations (exact at the nodes, linear in between) shrink the step below
