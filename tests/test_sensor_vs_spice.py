@@ -164,3 +164,15 @@ def test_synthetic_cameras_carry_their_ik_distortion(cameras):
     _, pinhole, distorted = cameras["sim_frame_a"]
     d = np.linalg.norm(pinhole.image_to_ground([5.0], [5.0]) - distorted.image_to_ground([5.0], [5.0]))
     assert d > 1.0
+
+
+@pytest.mark.parametrize("name", IMAGES)
+def test_image_edges_and_corners_round_trip(name, cameras):
+    """The first and last lines too: a sampled EO grid in absolute ET ends ~1e-8 s short of them."""
+    isd, _, cam = cameras[name]
+    nl, ns = isd.image_lines, isd.image_samples
+    lines = np.array([0.0, 0.5, 0.5, nl - 0.5, nl - 0.5, nl - 0.01, nl, nl / 2])
+    samples = np.array([0.0, 0.5, ns - 0.5, 0.5, ns - 0.5, 10.0, ns, 0.0])
+    xyz = cam.image_to_ground(lines, samples)
+    l2, s2 = cam.ground_to_image(xyz)
+    assert np.abs(l2 - lines).max() <= 1e-4 and np.abs(s2 - samples).max() <= 1e-4

@@ -233,8 +233,11 @@ class LineScanCamera(_CameraModel):
         t_first, t_last = self.eo.time_range
         if self.eo.times.size == 1:
             t_first, t_last = -np.inf, np.inf
-        lo = max(-pad, float(self.line_times.line(t_first)))
-        hi = min(n + pad, float(self.line_times.line(t_last)))
+        # One line of extrapolation at each end: sampled EO grids computed in
+        # absolute ET end a few 1e-8 s short of the last line (ET spacing at
+        # 8e8 s is 1.2e-7 s), and the cubic EO splines are exact over 1 ms.
+        lo = max(-pad, float(self.line_times.line(t_first)) - 1.0)
+        hi = min(n + pad, float(self.line_times.line(t_last)) + 1.0)
         if not hi > lo + 2.0:
             raise InvalidInputError("the exterior orientation does not cover the image's exposure times")
         return lo, hi
@@ -243,7 +246,7 @@ class LineScanCamera(_CameraModel):
         if self._table is not None:
             return self._table
         lo, hi = self._line_range()
-        n_nodes = int(np.floor(hi - lo)) + 1
+        n_nodes = int(np.ceil(hi - lo)) + 1
         step = max(1.0, (hi - lo) / (_TABLE_MAX - 1))
         n_nodes = min(n_nodes, _TABLE_MAX)
         lines = lo + step * np.arange(n_nodes)
