@@ -52,7 +52,7 @@ def main() -> None:
     cam = camera_from_isd(isd, distortion=False)  # pinhole, so both sides compute the same thing
     rng = np.random.default_rng(args.seed)
     n = args.points
-    lines = rng.uniform(0, isd.image_lines - 1, n)
+    lines = rng.uniform(0, isd.image_lines, n)
     samples = rng.uniform(0, isd.image_samples, n)
 
     t = time.perf_counter()
@@ -76,12 +76,15 @@ def main() -> None:
         # focal plane of sample S on the detector line: solve the IK affine
         a = np.array([[itransl[1], itransl[2]], [itranss[1], itranss[2]]])
 
+        # focal-plane coordinates for all baseline points at once: the loop then times SPICE only
+        xy = np.linalg.solve(a, np.stack([np.full(m, -itransl[0]), samples[:m] - bs - itranss[0]]))
+        dirs = np.column_stack([xy[0], xy[1], np.full(m, f)]).tolist()
+        ets = (start + lines[:m] * dt).tolist()
         t = time.perf_counter()
         base_xyz = np.empty((m, 3))
         for i in range(m):
-            x, y = np.linalg.solve(a, [-itransl[0], samples[i] - bs - itranss[0]])
-            base_xyz[i] = spiceypy.sincpt("ELLIPSOID", "MOON", start + lines[i] * dt, "IAU_MOON", "NONE",
-                                          "LUNARMAP-SIM", "SIM_NAC", [x, y, f])[0]
+            base_xyz[i] = spiceypy.sincpt("ELLIPSOID", "MOON", ets[i], "IAU_MOON", "NONE",
+                                          "LUNARMAP-SIM", "SIM_NAC", dirs[i])[0]
         t_base_i2g = time.perf_counter() - t
         i2g_agree_mm = float(np.abs(base_xyz * 1000.0 - xyz[:m]).max() * 1000.0)
 
