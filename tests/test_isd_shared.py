@@ -162,3 +162,56 @@ def test_kaguya_follows_ale_conventions(kaguya_set):
     assert isd["focal2pixel_samples"] == pytest.approx([0, 0, -1 / 0.007])
     assert set(isd["optical_distortion"]["kaguyalism"]) == {"x", "y", "boresight_x", "boresight_y"}
     assert isd["line_scan_rate"][0][2] == pytest.approx(dt)
+
+
+def test_lro_agrees_with_isis_spiceinit_tables(lro_set, lro_pair):
+    """ISIS spiceinit's tables in the cube: a second, independent peer computation.
+
+    ISIS covers the whole 52,224-line image with the mission kernels; the sliced
+    kernels here cover 0.4 s of it, so the records inside that span are compared
+    with the ISD (pointing) and with lunarmap's SPICE layer at ISIS's own epochs.
+    """
+    from lunarmap.labels import read_isis_table
+    from lunarmap.spice import queries
+
+    cube = lro_set / "M103595705LE.cub"
+    pointing, meta = read_isis_table(cube, "InstrumentPointing")
+    assert list(meta["TimeDependentFrames"]) == lro_pair[1]["instrument_pointing"]["time_dependent_frames"]
+    from lunarmap.errors import KernelCoverageError
+
+    ours = lro_pair[0]["instrument_pointing"]
+    t0 = ours["ephemeris_times"][0]
+    with kernels(_load(lro_set)):
+        inside = np.zeros(pointing["ET"].size, dtype=bool)
+        for i, et in enumerate(pointing["ET"]):  # which ISIS epochs the sliced kernels cover
+            try:
+                queries.rotations("J2000", "LRO_LROCNACL", [et])
+                inside[i] = True
+            except KernelCoverageError:
+                pass
+        assert inside.sum() > 50
+        q_isis = np.column_stack([pointing[f"J2000Q{i}"] for i in range(4)])[inside]
+        m = queries.rotations("J2000", "LRO_LROCNACL", pointing["ET"][inside])
+        position, _ = read_isis_table(cube, "InstrumentPosition")
+        first = position["ET"][0]
+        state = queries.states(-85, [first], "J2000", "NONE", 301)[0]
+    from lunarmap.orientation import matrix_to_quat
+
+    assert quat_angle(matrix_to_quat(m), q_isis).max() < 1e-3 * ARCSEC
+    assert first == pytest.approx(t0, abs=1e-6)
+    isis_xyz = np.array([position["J2000X"][0], position["J2000Y"][0], position["J2000Z"][0]])
+    assert np.abs(state[:3] - isis_xyz).max() < 1e-6  # km: 1 mm
+    assert np.abs(np.array(ours["quaternions"][0]) - q_isis[0]).max() < 1e-12 or \
+        np.abs(np.array(ours["quaternions"][0]) + q_isis[0]).max() < 1e-12
+
+
+def test_isis_table_errors(lro_set, tmp_path):
+    from lunarmap.errors import LabelError
+    from lunarmap.labels import read_isis_table
+
+    with pytest.raises(LabelError, match="no table 'Nope'"):
+        read_isis_table(lro_set / "M103595705LE.cub", "Nope")
+    short = tmp_path / "short.cub"
+    short.write_bytes((lro_set / "M103595705LE.cub").read_bytes()[:70000])
+    with pytest.raises(LabelError, match="past the end"):
+        read_isis_table(short, "InstrumentPointing")
