@@ -517,23 +517,35 @@ def write_spk(path: str | os.PathLike[str], segments: Sequence[SpkSegment], *,
     lines = _comment_lines(comments)
     final = Path(path)
     with atomic_path(final) as tmp, SPICE_LOCK:
-        with spice_errors(f"writing SPK {final}"):
-            handle = spiceypy.spkopn(str(tmp), internal_name[:60], max(5000, 100 * len(lines)))
-        try:
-            with spice_errors(f"writing SPK {final}"):
-                if lines:
-                    spiceypy.dafac(handle, lines)
-                for seg, t, states in prepared:
-                    spiceypy.spkw13(handle, int(seg.body), int(seg.center), seg.frame,
-                                    float(t[0]), float(t[-1]), seg.segment_id, int(seg.degree),
-                                    int(t.size), states, t)
-        except BaseException:
-            with contextlib.suppress(Exception):
-                spiceypy.dafcls(handle)
-            raise
-        with spice_errors(f"closing SPK {final}"):
-            spiceypy.spkcls(handle)
+        with _daf_open("SPK", final, tmp, internal_name, lines) as handle:
+            for seg, t, states in prepared:
+                spiceypy.spkw13(handle, int(seg.body), int(seg.center), seg.frame,
+                                float(t[0]), float(t[-1]), seg.segment_id, int(seg.degree),
+                                int(t.size), states, t)
     return final
+
+
+@contextlib.contextmanager
+def _daf_open(kind: str, final: Path, tmp: Path, internal_name: str, lines: list[str]) -> Iterator[int]:
+    """Open a new SPK or CK for writing, add the comments, close it; on failure close without finishing.
+
+    Errors inside the block are reported as ``writing <kind> <final>``; the
+    caller's :func:`atomic_path` removes the temporary file.
+    """
+    opener, closer = (spiceypy.spkopn, spiceypy.spkcls) if kind == "SPK" else (spiceypy.ckopn, spiceypy.ckcls)
+    with spice_errors(f"writing {kind} {final}"):
+        handle = opener(str(tmp), internal_name[:60], max(5000, 100 * len(lines)))
+    try:
+        with spice_errors(f"writing {kind} {final}"):
+            if lines:
+                spiceypy.dafac(handle, lines)
+            yield handle
+    except BaseException:
+        with contextlib.suppress(Exception):
+            spiceypy.dafcls(handle)
+        raise
+    with spice_errors(f"closing {kind} {final}"):
+        closer(handle)
 
 
 def _loaded(path: str) -> bool:
@@ -618,22 +630,11 @@ def write_ck(path: str | os.PathLike[str], segments: Sequence[CkSegment], *,
                 raise InvalidInputError(f"CK segment for frame {seg.inst}: epochs closer than one "
                                         "clock tick map to non-increasing SCLK")
         with atomic_path(final) as tmp:
-            with spice_errors(f"writing CK {final}"):
-                handle = spiceypy.ckopn(str(tmp), internal_name[:60], max(5000, 100 * len(lines)))
-            try:
-                with spice_errors(f"writing CK {final}"):
-                    if lines:
-                        spiceypy.dafac(handle, lines)
-                    for (seg, _t, q, av), tk in zip(prepared, ticks):
-                        spiceypy.ckw03(handle, float(tk[0]), float(tk[-1]), int(seg.inst), seg.ref,
-                                       True, seg.segment_id, int(tk.size), tk, q, av, 1,
-                                       np.array([tk[0]]))
-            except BaseException:
-                with contextlib.suppress(Exception):
-                    spiceypy.dafcls(handle)
-                raise
-            with spice_errors(f"closing CK {final}"):
-                spiceypy.ckcls(handle)
+            with _daf_open("CK", final, tmp, internal_name, lines) as handle:
+                for (seg, _t, q, av), tk in zip(prepared, ticks):
+                    spiceypy.ckw03(handle, float(tk[0]), float(tk[-1]), int(seg.inst), seg.ref,
+                                   True, seg.segment_id, int(tk.size), tk, q, av, 1,
+                                   np.array([tk[0]]))
     return final
 
 

@@ -65,6 +65,14 @@ class Driver:
         """Whether this driver handles ``label``."""
         return False
 
+    @staticmethod
+    def isis_instrument(label: Label) -> Label | None:
+        """The ``IsisCube/Instrument`` group of an ISIS label, ``None`` for other labels."""
+        cube = label.get("IsisCube")
+        if cube is None or "Instrument" not in cube:
+            return None
+        return cube["Instrument"]
+
     # -- label access -----------------------------------------------------------
     def group(self, name: str) -> Label:
         """An ISIS label group (``IsisCube/<name>``) or the PDS3 label itself."""

@@ -30,11 +30,8 @@ class ClementineUvvisDriver(Driver):
 
     @classmethod
     def matches(cls, label: Label) -> bool:
-        cube = label.get("IsisCube")
-        if cube is None or "Instrument" not in cube:
-            return False
-        inst = cube["Instrument"]
-        return str(inst.get("SpacecraftName", "")).upper().startswith("CLEMENTINE") and \
+        inst = cls.isis_instrument(label)
+        return inst is not None and str(inst.get("SpacecraftName", "")).upper().startswith("CLEMENTINE") and \
             str(inst.get("InstrumentId", "")) == "UVVIS"
 
     @property

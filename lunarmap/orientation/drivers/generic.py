@@ -38,8 +38,7 @@ class GenericDriver(Driver):
     @classmethod
     def matches(cls, label: Label) -> bool:
         cube = label.get("IsisCube")
-        return cube is not None and "Kernels" in cube and "NaifFrameCode" in cube["Kernels"] \
-            and "Instrument" in cube
+        return cls.isis_instrument(label) is not None and "Kernels" in cube and "NaifFrameCode" in cube["Kernels"]
 
     @property
     def model(self) -> str:  # type: ignore[override]

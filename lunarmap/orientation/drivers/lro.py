@@ -35,11 +35,9 @@ class LroNacDriver(Driver):
 
     @classmethod
     def matches(cls, label: Label) -> bool:
-        cube = label.get("IsisCube")
-        if cube is None or "Instrument" not in cube:
-            return False
-        inst = cube["Instrument"]
-        return str(inst.get("InstrumentHostId", "")) == "LRO" and str(inst.get("InstrumentId", "")) in _FRAMES
+        inst = cls.isis_instrument(label)
+        return inst is not None and str(inst.get("InstrumentHostId", "")) == "LRO" and \
+            str(inst.get("InstrumentId", "")) in _FRAMES
 
     @property
     def ikid(self) -> int:
