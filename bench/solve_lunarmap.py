@@ -1,0 +1,81 @@
+#!/usr/bin/env python3
+"""Solve a BAL problem with lunarmap.adjust; prints one JSON line with the keys of the shared harness.
+
+Control points listed in the ``.meta.json`` sidecar are held fixed (as the scipy and Ceres
+solvers of ``../shared/bench`` do).  ``--precision`` also computes the posterior standard
+deviations of all images and points and reports the time it took.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import sys
+import time
+
+import numpy as np
+
+from lunarmap.adjust import SolverOptions, bal_to_problem, problem_to_bal_cameras, read_bal, solve
+
+SHARED = os.environ.get("LUNARMAP_SHARED_BENCH", os.path.join(os.path.dirname(os.path.abspath(__file__)),
+                                                              "..", "..", "shared", "bench"))
+
+
+def peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("bal")
+    ap.add_argument("--backend", default="auto")
+    ap.add_argument("--ftol", type=float, default=1e-6)
+    ap.add_argument("--max-iterations", type=int, default=100)
+    ap.add_argument("--precision", action="store_true")
+    ap.add_argument("--no-datum-check", action="store_true")
+    ap.add_argument("--time-limit", type=float, default=0.0, help="accepted for harness compatibility (unused)")
+    args = ap.parse_args(argv)
+    t0 = time.perf_counter()
+    data = read_bal(args.bal)
+    t_read = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    problem = bal_to_problem(data)
+    opts = SolverOptions(ftol=args.ftol, max_iterations=args.max_iterations, backend=args.backend,
+                         check_datum=not args.no_datum_check)
+    res = solve(problem, opts)
+    t_solve = time.perf_counter() - t0
+    out = {
+        "solver": f"lunarmap-{args.backend}",
+        "problem": os.path.basename(args.bal),
+        "n_cameras": problem.n_images, "n_points": problem.n_points, "n_observations": problem.obs.n,
+        "solve_s": round(t_solve, 3),
+        "read_s": round(t_read, 3),
+        "iterations": res.iterations, "successful_steps": res.accepted,
+        "message": res.message,
+        "cost_initial": res.cost_initial, "cost_final": res.cost,
+        "rms_final_px": res.rms_px(), "sigma0": res.sigma0,
+        "trace_t_cost": [(round(t, 4), c) for t, c in res.trace],
+    }
+    if args.precision:
+        t1 = time.perf_counter()
+        pr = res.precision()
+        out["precision_s"] = round(time.perf_counter() - t1, 3)
+        out["precision_method"] = pr.method
+        out["median_point_sigma"] = float(np.median(np.sqrt(np.diagonal(pr.pt_cov, axis1=1, axis2=2))))
+    try:
+        sys.path.insert(0, SHARED)
+        import balutil as bu
+
+        cams = problem_to_bal_cameras(problem.model, res.cam_params)
+        out["accuracy_final"] = bu.accuracy_vs_truth(args.bal, cams, res.points)
+        out["rms_final_px_balutil"] = bu.read_bal(args.bal).rms_px(cams, res.points)
+    except ImportError:
+        pass
+    out["peak_rss_mb"] = round(peak_rss_mb(), 1)
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,26 @@
+"""Block adjustment: sparse bundle adjustment with navigation observations, RFM-affine adjustment, precision."""
+
+from .bal import BALData, bal_to_problem, problem_to_bal_cameras, read_bal, write_bal
+from .collinearity import FrameModel, frame_jacobians, project_frame
+from .exceptions import (
+    AdjustmentDivergedError,
+    AdjustmentError,
+    AdjustmentInputError,
+    DatumDefectError,
+    InsufficientObservationsError,
+    UnobservedParameterError,
+)
+from .factor import available_backends, factorize
+from .problem import BundleProblem, ImageObservations, PointPriors, ReducedTerm
+from .result import AdjustmentResult
+from .solver import AdjustmentState, SolverOptions, solve
+
+__all__ = [
+    "BALData", "read_bal", "write_bal", "bal_to_problem", "problem_to_bal_cameras",
+    "FrameModel", "frame_jacobians", "project_frame",
+    "AdjustmentError", "AdjustmentInputError", "InsufficientObservationsError", "UnobservedParameterError",
+    "DatumDefectError", "AdjustmentDivergedError",
+    "available_backends", "factorize",
+    "BundleProblem", "ImageObservations", "PointPriors", "ReducedTerm",
+    "AdjustmentResult", "AdjustmentState", "SolverOptions", "solve",
+]

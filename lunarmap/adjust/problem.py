@@ -1,0 +1,215 @@
+"""The inputs of a block adjustment: image observations, point priors, camera-level terms.
+
+A :class:`BundleProblem` bundles
+
+* an image model (``FrameModel``, ``AffineRFMModel`` ...) exposing ``n_params``,
+  ``project(params, cam_idx, X)`` and ``linearize(params, cam_idx, X)``;
+* initial image parameters ``(n_img, n_params)`` and points ``(n_pt, 3)``;
+* :class:`ImageObservations` (pixels, with sigma in pixels);
+* :class:`PointPriors` (control points: observed coordinates with sigma,
+  ``sigma = 0`` holds the coordinate fixed);
+* optional camera-level terms (navigation observations, per-orbit offsets
+  and drifts) implementing :class:`ReducedTerm`.
+
+Per-observation weight factors (``obs_weight``) may be changed between
+iterations (robust reweighting, data snooping); see ``solve(reweight=...)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from .exceptions import AdjustmentInputError, InsufficientObservationsError, UnobservedParameterError
+
+__all__ = ["ImageObservations", "PointPriors", "ReducedTerm", "BundleProblem"]
+
+
+def _finite(name: str, a: NDArray) -> None:
+    bad = ~np.isfinite(a)
+    if bad.any():
+        first = int(np.argwhere(bad)[0][0])
+        raise AdjustmentInputError(f"{name}: {int(bad.sum())} non-finite value(s) (NaN/inf), first at row {first}")
+
+
+@dataclass
+class ImageObservations:
+    """Image measurements.
+
+    Attributes
+    ----------
+    cam_idx, pt_idx : (n,) int
+        Image and point of each measurement.
+    xy : (n, 2) float
+        Measured image coordinates, pixels (in the image model's convention).
+    sigma : (n, 2) float
+        A-priori standard deviations, pixels (broadcast from a scalar or per-image array by
+        :meth:`BundleProblem.__post_init__`).
+    """
+
+    cam_idx: NDArray[np.int64]
+    pt_idx: NDArray[np.int64]
+    xy: NDArray[np.float64]
+    sigma: Any = 1.0
+
+    @property
+    def n(self) -> int:
+        return int(self.cam_idx.size)
+
+
+@dataclass
+class PointPriors:
+    """Control points: observed object coordinates (length unit of the block) with sigma.
+
+    ``sigma`` ``(k, 3)``; a zero sigma holds that point fixed (all three coordinates).
+    """
+
+    idx: NDArray[np.int64]
+    xyz: NDArray[np.float64]
+    sigma: NDArray[np.float64]
+
+    @property
+    def fixed(self) -> NDArray[np.bool_]:
+        return np.all(self.sigma == 0.0, axis=1)
+
+
+class ReducedTerm(Protocol):
+    """Observations that involve only image parameters and extra parameters (navigation data).
+
+    The reduced unknown vector is ``[image params (n_img * p) | extra (n_extra)]``.
+    """
+
+    n_extra: int
+    n_obs_scalar: int
+
+    def initial_extra(self) -> NDArray[np.float64]: ...
+
+    def linearize(self, cam_params: NDArray, extra: NDArray) -> tuple[NDArray, sp.csr_matrix]:
+        """Whitened residuals ``(m,)`` and their whitened Jacobian ``(m, n_red)``."""
+        ...
+
+    def extra_free(self) -> NDArray[np.bool_]: ...
+
+
+@dataclass
+class BundleProblem:
+    """A complete adjustment problem; validated on construction."""
+
+    model: Any
+    cam_params: NDArray[np.float64]
+    points: NDArray[np.float64]
+    obs: ImageObservations
+    priors: PointPriors | None = None
+    terms: list = field(default_factory=list)
+    cam_param_free: NDArray[np.bool_] | None = None
+    obs_weight: NDArray[np.float64] | None = None
+
+    def __post_init__(self):
+        self.cam_params = np.array(self.cam_params, dtype=float)
+        self.points = np.array(self.points, dtype=float)
+        o = self.obs
+        o.cam_idx = np.asarray(o.cam_idx, dtype=np.int64)
+        o.pt_idx = np.asarray(o.pt_idx, dtype=np.int64)
+        o.xy = np.asarray(o.xy, dtype=float)
+        n_img, p = self.cam_params.shape
+        if p != self.model.n_params:
+            raise AdjustmentInputError(f"cam_params has {p} columns, the image model needs {self.model.n_params}")
+        if self.points.ndim != 2 or self.points.shape[1] != 3:
+            raise AdjustmentInputError(f"points must be (n, 3), got {self.points.shape}")
+        n_pt = self.points.shape[0]
+        if o.xy.shape != (o.n, 2) or o.pt_idx.shape != (o.n,):
+            raise AdjustmentInputError("image observations: cam_idx, pt_idx (n,) and xy (n, 2) must agree")
+        _finite("image observations xy", o.xy)
+        _finite("initial image parameters", self.cam_params)
+        _finite("initial points", self.points)
+        for name, idx, top in (("cam_idx", o.cam_idx, n_img), ("pt_idx", o.pt_idx, n_pt)):
+            if idx.size and (idx.min() < 0 or idx.max() >= top):
+                raise AdjustmentInputError(f"image observations: {name} out of range [0, {top})")
+        sig = np.asarray(o.sigma, dtype=float)
+        if sig.ndim == 0:
+            sig = np.full((o.n, 2), float(sig))
+        elif sig.shape == (o.n,):
+            sig = np.repeat(sig[:, None], 2, axis=1)
+        elif sig.shape == (n_img,):  # one sigma per image (camera group)
+            sig = np.repeat(sig[o.cam_idx][:, None], 2, axis=1)
+        elif sig.shape != (o.n, 2):
+            raise AdjustmentInputError(f"image observation sigma has shape {sig.shape}; expected scalar, "
+                                       f"({o.n},), ({n_img},) or ({o.n}, 2)")
+        o.sigma = np.array(sig, dtype=float)
+        _finite("image observation sigma", o.sigma)
+        if np.any(o.sigma <= 0):
+            raise AdjustmentInputError("image observation sigma must be > 0 pixels")
+        if self.priors is not None:
+            pr = self.priors
+            pr.idx = np.asarray(pr.idx, dtype=np.int64)
+            pr.xyz = np.asarray(pr.xyz, dtype=float).reshape(-1, 3)
+            pr.sigma = np.array(np.broadcast_to(np.asarray(pr.sigma, dtype=float).reshape(-1, 1)
+                                                if np.ndim(pr.sigma) == 1 else pr.sigma, pr.xyz.shape))
+            _finite("control point coordinates", pr.xyz)
+            _finite("control point sigma", pr.sigma)
+            if pr.idx.size and (pr.idx.min() < 0 or pr.idx.max() >= n_pt):
+                raise AdjustmentInputError(f"control point index out of range [0, {n_pt})")
+            if np.any(pr.sigma < 0):
+                raise AdjustmentInputError("control point sigma must be >= 0 (0 = fixed)")
+            if np.unique(pr.idx).size != pr.idx.size:
+                raise AdjustmentInputError("control point indices repeat")
+        if self.cam_param_free is None:
+            self.cam_param_free = np.ones((n_img, p), dtype=bool)
+        self.cam_param_free = np.asarray(self.cam_param_free, dtype=bool).reshape(n_img, p)
+        if self.obs_weight is None:
+            self.obs_weight = np.ones(o.n)
+        self._check_observability()
+
+    @property
+    def n_images(self) -> int:
+        return self.cam_params.shape[0]
+
+    @property
+    def n_points(self) -> int:
+        return self.points.shape[0]
+
+    def point_fixed(self) -> NDArray[np.bool_]:
+        fixed = np.zeros(self.n_points, dtype=bool)
+        if self.priors is not None:
+            fixed[self.priors.idx[self.priors.fixed]] = True
+        return fixed
+
+    def n_unknowns(self) -> int:
+        n = int(self.cam_param_free.sum()) + 3 * int((~self.point_fixed()).sum())
+        return n + sum(int(np.sum(t.extra_free())) for t in self.terms)
+
+    def n_observations(self) -> int:
+        """Scalar observations: 2 per image measurement, 3 per weighted control point, plus camera-level terms."""
+        n = 2 * self.obs.n
+        if self.priors is not None:
+            n += 3 * int((~self.priors.fixed).sum())
+        return n + sum(int(t.n_obs_scalar) for t in self.terms)
+
+    def _check_observability(self) -> None:
+        o = self.obs
+        per_img = np.bincount(o.cam_idx, minlength=self.n_images)
+        has_term = np.zeros(self.n_images, dtype=bool)
+        for t in self.terms:
+            has_term |= getattr(t, "observed_images", lambda: np.zeros(self.n_images, bool))()
+        free_img = self.cam_param_free.any(axis=1)
+        lonely = np.nonzero((per_img == 0) & free_img & ~has_term)[0]
+        if lonely.size:
+            raise UnobservedParameterError(
+                f"{lonely.size} image(s) have no observations but free parameters, first: image {int(lonely[0])}")
+        per_pt = np.bincount(o.pt_idx, minlength=self.n_points)
+        free_pt = ~self.point_fixed()
+        weak = np.nonzero((per_pt < 2) & free_pt)[0]
+        if self.priors is not None:
+            weak = np.setdiff1d(weak, self.priors.idx[(per_pt[self.priors.idx] >= 1)])
+        if weak.size:
+            raise UnobservedParameterError(
+                f"{weak.size} free point(s) are measured in fewer than 2 images, first: point {int(weak[0])} "
+                f"({int(per_pt[weak[0]])} measurement(s))")
+        n_u, n_o = self.n_unknowns(), self.n_observations()
+        if n_o < n_u:
+            raise InsufficientObservationsError(
+                f"{n_o} scalar observations for {n_u} unknowns: too few observations (redundancy {n_o - n_u})")
