@@ -1,0 +1,72 @@
+"""Run a block with single-threaded OpenBLAS (best effort, no dependency).
+
+Why: the fit's least-squares problems are tall and thin (tens of thousands
+of rows, 39 columns). On this project's shared 2-core machines, OpenBLAS's
+threads made ``numpy.linalg.lstsq`` on them 10-20 times slower than one
+thread whenever another process held a core (measured: 6.4 s vs 0.4 s for
+one NAC fit). dask worker processes already run with one BLAS thread
+(distributed's ``pre-spawn-environ``); this gives the serial path the same.
+
+Implemented with ``ctypes`` on the OpenBLAS that numpy loaded (what
+threadpoolctl does, which lunarmap does not depend on); a no-op when the
+library or its symbols are not found. Nested and concurrent use is counted
+under a lock, so the original thread count is restored by the last exit.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import threading
+from typing import Callable, Iterator
+
+__all__ = ["single_threaded_blas"]
+
+_lock = threading.Lock()
+_depth = 0
+_saved: int | None = None
+_api: tuple[Callable[[], int], Callable[[int], None]] | None | bool = False  # False: not looked up yet
+
+
+def _find_api() -> tuple[Callable[[], int], Callable[[int], None]] | None:
+    try:
+        with open("/proc/self/maps", encoding="ascii", errors="replace") as fh:
+            paths = {ln.split()[-1] for ln in fh if "openblas" in ln.lower() and ln.split()[-1].startswith("/")}
+    except OSError:
+        return None
+    for path in sorted(paths):
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for prefix, suffix in (("scipy_openblas", "64_"), ("scipy_openblas", ""), ("openblas", "64_"),
+                               ("openblas", "")):
+            get = getattr(lib, f"{prefix}_get_num_threads{suffix}", None)
+            put = getattr(lib, f"{prefix}_set_num_threads{suffix}", None)
+            if get is not None and put is not None:
+                get.restype = ctypes.c_int
+                put.argtypes = [ctypes.c_int]
+                return get, put
+    return None
+
+
+@contextlib.contextmanager
+def single_threaded_blas() -> Iterator[None]:
+    """Context in which OpenBLAS uses one thread; restores the previous count on exit."""
+    global _depth, _saved, _api
+    with _lock:
+        if _api is False:
+            _api = _find_api()
+        if _api and _depth == 0:
+            get, put = _api  # type: ignore[misc]
+            _saved = int(get())
+            put(1)
+        _depth += 1
+    try:
+        yield
+    finally:
+        with _lock:
+            _depth -= 1
+            if _api and _depth == 0 and _saved is not None:
+                _api[1](_saved)  # type: ignore[index]
+                _saved = None

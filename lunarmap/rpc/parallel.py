@@ -1,0 +1,132 @@
+"""RPC fitting on dask: rigorous grids in tiles, many images in one graph.
+
+The rigorous evaluation of a grid is split into tiles of image lines
+(:func:`rigorous_grid_delayed`); each tile is ``camera.image_to_ground`` on
+a sub-grid, and the tiles are stitched back in the serial order (layers x
+lines x samples), so the fitted coefficients are identical to
+:func:`~lunarmap.rpc.fit.fit_rpc`'s. :func:`fit_rpc_delayed` builds one
+image's graph (fit-grid tiles -> fit -> check-grid tiles -> report) and
+:func:`fit_many` merges the graphs of many images and computes them
+together, on a ``distributed.Client`` when given one.
+
+No SPICE is needed on the workers: cameras are plain numpy objects that
+pickle (build them from ISDs first, see ``lunarmap.camera.factory``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from typing import Any, Sequence
+
+import dask
+import numpy as np
+from dask.delayed import Delayed
+
+from .exceptions import RpcInputError
+from .fit import FitOptions, RpcFit, fit_from_grid
+from .grid import CameraModel, GridNodes, GroundGrid, check_grid_nodes, fit_grid_nodes, height_layers, rigorous_grid
+
+__all__ = ["rigorous_grid_delayed", "fit_rpc_delayed", "fit_many"]
+
+
+def _tile(camera: CameraModel, nodes: GridNodes, max_emission: float) -> GroundGrid:
+    return rigorous_grid(camera, nodes, max_emission)
+
+
+def _stitch(parts: list[GroundGrid], n_heights: int, n_samples: int) -> GroundGrid:
+    """Tiles over lines -> one grid in serial (layer, line, sample) order."""
+    def cat(k: str) -> np.ndarray:
+        return np.concatenate([getattr(p, k).reshape(n_heights, -1, n_samples) for p in parts], axis=1).ravel()
+    return GroundGrid(*(cat(k) for k in ("line", "sample", "lon", "lat", "height")))
+
+
+def rigorous_grid_delayed(camera: CameraModel | Delayed, nodes: GridNodes, tile_lines: int = 32,
+                          max_emission: float = 85.0) -> Delayed:
+    """A delayed :class:`~lunarmap.rpc.grid.GroundGrid` computed in tiles of ``tile_lines`` grid lines.
+
+    Equal, element for element, to :func:`~lunarmap.rpc.grid.rigorous_grid`
+    on the whole grid.
+    """
+    if int(tile_lines) < 1:
+        raise RpcInputError(f"tile_lines must be >= 1, got {tile_lines}")
+    parts = []
+    for i0 in range(0, nodes.lines.size, int(tile_lines)):
+        sub = GridNodes(nodes.lines[i0:i0 + int(tile_lines)], nodes.samples, nodes.heights)
+        parts.append(dask.delayed(_tile, pure=True)(camera, sub, max_emission))
+    return dask.delayed(_stitch, pure=True)(parts, nodes.heights.size, nodes.samples.size)
+
+
+def _options(height_range: tuple[float, float] | None, options: FitOptions | None,
+             overrides: dict[str, Any]) -> FitOptions:
+    opts = options or FitOptions()
+    if height_range is not None:
+        overrides = {**overrides, "height_range": tuple(height_range)}
+    unknown = set(overrides) - set(FitOptions.__dataclass_fields__)
+    if unknown:
+        raise RpcInputError(f"unknown fit option(s): {', '.join(sorted(unknown))}")
+    return FitOptions(**{**asdict(opts), **overrides}) if overrides else opts
+
+
+def fit_rpc_delayed(camera: CameraModel, height_range: tuple[float, float] | None = None, *, check: bool = True,
+                    tile_lines: int | None = None, options: FitOptions | None = None,
+                    **option_overrides: Any) -> Delayed:
+    """The dask graph of :func:`~lunarmap.rpc.fit.fit_rpc` for one image; computes to an :class:`RpcFit`.
+
+    Parameters
+    ----------
+    camera : FrameCamera or LineScanCamera
+        Rigorous model (pickled once into the graph).
+    height_range, check, options, **option_overrides
+        As for :func:`~lunarmap.rpc.fit.fit_rpc`.
+    tile_lines : int, optional
+        Grid lines per rigorous-evaluation tile; ``None``: one tile per grid
+        (the right choice when many images already fill the workers).
+    """
+    opts = _options(height_range, options, option_overrides)
+    io = camera.interior
+    layers = height_layers(opts.height_range, opts.n_layers, opts.margin)
+    nodes = fit_grid_nodes(io.n_lines, io.n_samples, layers, opts.short_axis, opts.long_axis_max)
+    cam = dask.delayed(camera, traverse=False)
+    tl = tile_lines or nodes.lines.size
+    grid = rigorous_grid_delayed(cam, nodes, tl, opts.max_emission)
+    check_grid = None
+    if check:
+        cnodes = check_grid_nodes(io.n_lines, io.n_samples, layers, opts.short_axis, opts.long_axis_max,
+                                  opts.check_density, opts.check_outside)
+        check_grid = rigorous_grid_delayed(cam, cnodes, tile_lines or cnodes.lines.size, 90.0)
+    return dask.delayed(fit_from_grid, pure=True)(cam, grid, nodes, layers, opts, check, check_grid)
+
+
+def fit_many(cameras: Sequence[CameraModel], height_ranges: Sequence[tuple[float, float] | None] | None = None,
+             *, client: Any = None, check: bool = True, tile_lines: int | None = None,
+             options: FitOptions | None = None, **option_overrides: Any) -> list[RpcFit]:
+    """Fit RFMs to many images as one dask graph.
+
+    Parameters
+    ----------
+    cameras : sequence of FrameCamera or LineScanCamera
+        Rigorous models.
+    height_ranges : sequence of (float, float) or None, optional
+        Per-image height ranges, metres; ``None`` entries (or no sequence)
+        use the options' range.
+    client : distributed.Client, optional
+        Compute on this cluster; otherwise dask's current scheduler.
+    check, tile_lines, options, **option_overrides
+        As for :func:`fit_rpc_delayed`.
+
+    Returns
+    -------
+    list of RpcFit
+        In the order of ``cameras``; identical to serial
+        :func:`~lunarmap.rpc.fit.fit_rpc` results.
+    """
+    cameras = list(cameras)
+    if height_ranges is None:
+        height_ranges = [None] * len(cameras)
+    if len(height_ranges) != len(cameras):
+        raise RpcInputError(f"{len(height_ranges)} height ranges for {len(cameras)} cameras")
+    graphs = [fit_rpc_delayed(c, hr, check=check, tile_lines=tile_lines, options=options, **option_overrides)
+              for c, hr in zip(cameras, height_ranges)]
+    if client is not None:
+        return list(client.gather(client.compute(graphs)))
+    return list(dask.compute(*graphs))
