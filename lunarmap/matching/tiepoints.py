@@ -1,0 +1,230 @@
+"""The tie-point chain for a set of images, and the tie-point table.
+
+Per image, interest points are detected tile by tile; per image pair
+``(i, j)``, the points of image ``i`` are predicted into ``j`` through the
+sensor models, matched by pyramid NCC and least-squares matching, and
+screened by RANSAC; matches of all pairs are joined into multi-image tracks.
+The result is an ``xarray.Dataset`` with one row per observation:
+
+=================  =======================================================
+``point_id``       track id (one per ground feature), int64
+``image_id``       index into the ``image`` coordinate (image names)
+``line, sample``   image coordinates, pixels (CSM: first pixel centre 0.5)
+``sigma_line``     standard deviation, pixels (LSM's, split equally
+``sigma_sample``   between the two images of a match: ``sigma / sqrt 2``)
+``correlation``    LSM correlation coefficient
+=================  =======================================================
+
+:func:`find_tiepoints` builds the dask graph of :mod:`.parallel` and computes
+it with any scheduler (``"sync"`` for serial, a ``distributed.Client``...).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import xarray as xr
+from numpy.typing import NDArray
+
+from ..errors import InvalidInputError
+from .interest import InterestPoints, foerstner
+from .pairs import STATUS, MatchParams, PairMatches, match_points
+from .ransac import RansacParams, ransac_local_affine
+from .tracks import Observations, build_tracks
+
+__all__ = ["DetectParams", "TiePointParams", "detect_tile", "tile_windows", "match_pair", "assemble_tiepoints",
+           "find_tiepoints", "write_tiepoints", "read_tiepoints"]
+
+
+@dataclass
+class DetectParams:
+    """Interest-point detection per tile (pixels); see :func:`~lunarmap.matching.interest.foerstner`."""
+
+    tile: int = 256
+    window: int = 5
+    nms: int = 7
+    cell: int = 32
+    per_cell: int = 2
+    q_min: float = 0.5
+    min_contrast: float = 1.0
+    border: int = 10
+
+
+@dataclass
+class TiePointParams:
+    """All tuning of the chain."""
+
+    detect: DetectParams = field(default_factory=DetectParams)
+    match: MatchParams = field(default_factory=MatchParams)
+    ransac: RansacParams = field(default_factory=RansacParams)
+    track_tol: float = 0.5
+
+
+def tile_windows(shape: tuple[int, int], tile: int, halo: int) -> list[tuple[tuple[int, int, int, int],
+                                                                           tuple[int, int, int, int]]]:
+    """``(core, padded)`` array-index windows ``(l0, l1, s0, s1)`` tiling an image."""
+    h, w = shape
+    out = []
+    for a in range(0, h, tile):
+        for c in range(0, w, tile):
+            core = (a, min(a + tile, h), c, min(c + tile, w))
+            pad = (max(a - halo, 0), min(a + tile + halo, h), max(c - halo, 0), min(c + tile + halo, w))
+            out.append((core, pad))
+    return out
+
+
+def detect_tile(pixels: NDArray, core: tuple[int, int, int, int], padded: tuple[int, int, int, int],
+                params: DetectParams, saturation: float | None, label: str) -> InterestPoints:
+    """Interest points of one tile (``pixels`` = the padded window); CSM coordinates of the full image."""
+    lab = f"{label} tile lines [{core[0]}, {core[1]}) samples [{core[2]}, {core[3]})"
+    return foerstner(np.asarray(pixels, dtype=float), window=params.window, nms=params.nms, cell=params.cell,
+                     per_cell=params.per_cell, q_min=params.q_min, min_contrast=params.min_contrast,
+                     border=params.border, saturation=saturation, origin=(padded[0], padded[2]), core=core,
+                     label=lab)
+
+
+def merge_points(parts: Sequence[InterestPoints]) -> InterestPoints:
+    """Concatenate the interest points of all tiles of an image."""
+    if not parts:
+        return InterestPoints(np.empty(0), np.empty(0), np.empty(0))
+    return InterestPoints(*(np.concatenate([p[k] for p in parts]) for k in range(3)))
+
+
+def match_pair(image1: NDArray, image2: NDArray, sensor1: Any, sensor2: Any, points: InterestPoints,
+               height: Any, params: TiePointParams, label: str) -> PairMatches:
+    """Match one image pair and screen the matches with RANSAC (outliers get status ``outlier``)."""
+    m = match_points(image1, image2, sensor1, sensor2, points.line, points.sample, height=height,
+                     params=params.match, label=label)
+    ok = m.ok
+    if np.count_nonzero(ok) >= 3:
+        p = m.prediction
+        inl = ransac_local_affine(m.line1[ok], m.sample1[ok], m.line2[ok] - p.line[ok],
+                                  m.sample2[ok] - p.sample[ok], p.epipolar[ok], params.ransac)
+        idx = np.flatnonzero(ok)
+        m.status[idx[~inl]] = STATUS["outlier"]
+    m.meta["n_points"] = int(m.line1.size)
+    m.meta["n_ok"] = int(np.count_nonzero(m.ok))
+    return m
+
+
+def assemble_tiepoints(results: Sequence[tuple[int, int, PairMatches]], names: Sequence[str],
+                       track_tol: float = 0.5) -> xr.Dataset:
+    """Join pair matches into tracks and return the tie-point table (see the module docstring)."""
+    img, node, line, samp, sl, ss, corr, ea, eb = ([] for _ in range(9))
+    n_rows = 0
+    next_node = 0
+    anchor_base = {}
+    for i, j, m in results:
+        ok = np.flatnonzero(m.ok)
+        k = ok.size
+        if k == 0:
+            continue
+        if i not in anchor_base:  # anchors of image i: one node per interest point, shared by its pairs
+            anchor_base[i] = next_node
+            next_node += 10 ** 9
+        anchors = anchor_base[i] + ok
+        matched = next_node + np.arange(k)
+        next_node += k
+        s_l = m.sigma_line[ok] / np.sqrt(2.0)
+        s_s = m.sigma_sample[ok] / np.sqrt(2.0)
+        img += [np.full(k, i), np.full(k, j)]
+        node += [anchors, matched]
+        line += [m.line1[ok], m.line2[ok]]
+        samp += [m.sample1[ok], m.sample2[ok]]
+        sl += [s_l, s_l]
+        ss += [s_s, s_s]
+        corr += [m.correlation[ok], m.correlation[ok]]
+        ea.append(n_rows + np.arange(k))
+        eb.append(n_rows + k + np.arange(k))
+        n_rows += 2 * k
+
+    def cat(parts: list, dtype: type) -> NDArray:
+        return np.concatenate(parts).astype(dtype) if parts else np.empty(0, dtype=dtype)
+
+    obs = Observations(cat(img, np.int64), cat(node, np.int64), cat(line, float), cat(samp, float),
+                       cat(sl, float), cat(ss, float), cat(corr, float), cat(ea, np.int64), cat(eb, np.int64))
+    table, n_conflicts = build_tracks(obs, tol=track_tol)
+    pair_stats = {f"{names[i]}|{names[j]}": f"{m.meta.get('n_ok', 0)}/{m.meta.get('n_points', 0)}"
+                  for i, j, m in results}
+    ds = xr.Dataset(
+        {
+            "point_id": ("observation", table["point_id"].to_numpy(np.int64), {"long_name": "tie-point (track) id"}),
+            "image_id": ("observation", table["image_id"].to_numpy(np.int32),
+                         {"long_name": "index into the image coordinate"}),
+            "line": ("observation", table["line"].to_numpy(float), {"units": "pixel"}),
+            "sample": ("observation", table["sample"].to_numpy(float), {"units": "pixel"}),
+            "sigma_line": ("observation", table["sigma_line"].to_numpy(float), {"units": "pixel"}),
+            "sigma_sample": ("observation", table["sigma_sample"].to_numpy(float), {"units": "pixel"}),
+            "correlation": ("observation", table["correlation"].to_numpy(float), {"units": "1"}),
+        },
+        coords={"image": ("image", np.asarray(list(names), dtype=str))},
+        attrs={"pixel_convention": "CSM: centre of the first pixel at (0.5, 0.5)",
+               "sigma_convention": "LSM standard deviation of the match split equally: sigma / sqrt(2) per image",
+               "n_conflicting_tracks_dropped": n_conflicts,
+               "matches_per_pair": "; ".join(f"{k}: {v}" for k, v in pair_stats.items()),
+               "source": "lunarmap.matching"},
+    )
+    return ds
+
+
+def find_tiepoints(images: Mapping[str, xr.DataArray | NDArray], sensors: Mapping[str, Any],
+                   pairs: Sequence[tuple[str, str]] | None = None, height: Any = 0.0,
+                   params: TiePointParams | None = None, scheduler: Any = "sync") -> xr.Dataset:
+    """Tie points of a set of images (one dask task per tile and per image pair).
+
+    Parameters
+    ----------
+    images : mapping name -> xarray.DataArray or ndarray
+        Images (``line``, ``sample``), grey levels; NaN marks invalid pixels.
+    sensors : mapping name -> SensorModel
+        Sensor model of each image (cameras or RPCs).
+    pairs : sequence of (name, name), optional
+        Pairs to match (points of the first are matched into the second);
+        default: every pair ``(a, b)`` with ``a`` before ``b``.
+    height : float or xarray.DataArray
+        Prediction height (metres) or coarse DTM.
+    params : TiePointParams
+    scheduler : str or distributed.Client
+        ``"sync"`` (serial), ``"threads"``, ``"processes"`` or a ``distributed.Client``.
+
+    Returns
+    -------
+    xarray.Dataset
+        The tie-point table.
+    """
+    from .parallel import tiepoint_graph
+
+    graph = tiepoint_graph(images, sensors, pairs=pairs, height=height, params=params)
+    if hasattr(scheduler, "compute") and hasattr(scheduler, "gather"):  # a distributed.Client
+        return scheduler.compute(graph).result()
+    return graph.compute(scheduler=scheduler)
+
+
+def write_tiepoints(ds: xr.Dataset, path: str | os.PathLike) -> Path:
+    """Write a tie-point table to netCDF atomically (temporary file in the same folder, then rename)."""
+    path = Path(path)
+    if not isinstance(ds, xr.Dataset) or "point_id" not in ds:
+        raise InvalidInputError("write_tiepoints expects the Dataset returned by find_tiepoints")
+    if not path.parent.is_dir():
+        raise InvalidInputError(f"cannot write {path}: folder {path.parent} does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        ds.to_netcdf(tmp, engine="netcdf4")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def read_tiepoints(path: str | os.PathLike) -> xr.Dataset:
+    """Read a tie-point table written by :func:`write_tiepoints` (loaded into memory, file closed)."""
+    with xr.open_dataset(path, engine="netcdf4") as ds:
+        return ds.load()

@@ -1,0 +1,18 @@
+"""Image simulation with known truth: synthetic terrain and albedo, and a DTM + orthoimage renderer."""
+
+from .exceptions import SimulationWarning
+from .render import RenderSpec, render_image, surface_normals
+from .sampling import RasterSampler
+from .terrain import (
+    add_craters,
+    local_grid,
+    rolling_terrain,
+    synthetic_albedo,
+    synthetic_dtm,
+    synthetic_scene,
+)
+
+__all__ = [
+    "render_image", "RenderSpec", "surface_normals", "RasterSampler", "SimulationWarning",
+    "local_grid", "rolling_terrain", "add_craters", "synthetic_dtm", "synthetic_albedo", "synthetic_scene",
+]
