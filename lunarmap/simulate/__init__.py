@@ -3,6 +3,7 @@
 from .exceptions import SimulationWarning
 from .render import RenderSpec, render_image, surface_normals
 from .sampling import RasterSampler
+from .stereo import look_angle_for_emission, pointed_camera, stereo_pair
 from .terrain import (
     add_craters,
     local_grid,
@@ -11,8 +12,10 @@ from .terrain import (
     synthetic_dtm,
     synthetic_scene,
 )
+from .truth import matching_errors, true_conjugates
 
 __all__ = [
     "render_image", "RenderSpec", "surface_normals", "RasterSampler", "SimulationWarning",
     "local_grid", "rolling_terrain", "add_craters", "synthetic_dtm", "synthetic_albedo", "synthetic_scene",
+    "look_angle_for_emission", "pointed_camera", "stereo_pair", "true_conjugates", "matching_errors",
 ]
