@@ -106,7 +106,7 @@ def _peak(rho: Array) -> tuple[Array, Array, Array]:
 
 def ncc_match(pyr1: list[Array], pyr2: list[Array], line1: Array, sample1: Array, line2: Array,
               sample2: Array, affine: Array, half: int = 7, search: float = 16.0, refine: int = 2,
-              top_radius: int = 4) -> NccResult:
+              top_radius: int = 4, coarse_min: float = 0.6) -> NccResult:
     """Match points of image 1 into image 2 by pyramid NCC around predicted positions.
 
     Parameters
@@ -128,6 +128,9 @@ def ncc_match(pyr1: list[Array], pyr2: list[Array], line1: Array, sample1: Array
     top_radius : int
         Largest search radius wanted on the top level, pixels; fixes how many
         pyramid levels are used.
+    coarse_min : float
+        On levels above 0 a peak below this correlation is not trusted: the
+        point keeps its estimate and searches a wider area on the next level.
 
     Returns
     -------
@@ -164,7 +167,7 @@ def ncc_match(pyr1: list[Array], pyr2: list[Array], line1: Array, sample1: Array
                 gs = cs[act, None, None] / f + a[:, 1, 0, None, None] * ol + a[:, 1, 1, None, None] * os_
                 s = bilinear(pyr2[level], gl, gs)
                 vl, vs, best = _peak(_ncc_surface(t, s))
-                ok = np.isfinite(best)
+                ok = np.isfinite(best) & ((level == 0) | (best >= coarse_min))
                 # Shift found in image-1 pixels of this level -> image-2 level-0 pixels.
                 cl[act[ok]] += f * (a[ok, 0, 0] * vl[ok] + a[ok, 0, 1] * vs[ok])
                 cs[act[ok]] += f * (a[ok, 1, 0] * vl[ok] + a[ok, 1, 1] * vs[ok])
