@@ -102,14 +102,20 @@ def foerstner(image: NDArray, window: int = 5, nms: int = 7, cell: int = 32, per
         raise InvalidInputError("window >= 3, nms >= 1, cell >= 1 and per_cell >= 1 are required")
     empty = InterestPoints(np.empty(0), np.empty(0), np.empty(0))
     bad = invalid_mask(img, saturation)
-    valid_frac = 1.0 - bad.mean() if bad.size else 0.0
-    good = img[~bad]
+    # Blankness is judged on the tile itself, not on the halo borrowed from its neighbours.
+    if core is not None:
+        r0, c0 = max(core[0] - origin[0], 0), max(core[2] - origin[1], 0)
+        region = (slice(r0, max(core[1] - origin[0], r0)), slice(c0, max(core[3] - origin[1], c0)))
+    else:
+        region = (slice(None), slice(None))
+    valid_frac = 1.0 - bad[region].mean() if bad[region].size else 0.0
+    good = img[region][~bad[region]]
     if valid_frac < 0.05 or good.size < window * window or float(np.std(good)) < min_contrast:
         why = ("mostly NaN or saturated" if valid_frac < 0.05 or good.size < window * window
                else f"grey-level spread {float(np.std(good)) if good.size else 0.0:.3g} < {min_contrast}")
         warn(f"{label}: no texture ({why}); no interest points there", BlankTileWarning)
         return empty
-    filled = np.where(bad, float(np.mean(good)), img)
+    filled = np.where(bad, float(np.mean(img[~bad])), img)
     gl, gs = np.gradient(filled)
     area = float(window * window)
     nll = ndimage.uniform_filter(gl * gl, window) * area
