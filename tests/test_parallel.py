@@ -27,7 +27,7 @@ def test_worker_plugin_furnishes_every_worker_process(tmp_path):
     k = tmp_path / "w.tpc"
     k.write_text("KPL/PCK\n\\begindata\nLUNARMAP_WORKER_TEST = 42\n\\begintext\n")
     kset = KernelSet.from_files([k])
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=2, processes=True, dashboard_address=None,
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=2, processes=True, dashboard_address=":0",
                                   silence_logs=40) as cluster, distributed.Client(cluster) as client:
         register_kernels(client, kset)
         futures = [client.submit(_pool_value, "LUNARMAP_WORKER_TEST", pure=False) for _ in range(16)]

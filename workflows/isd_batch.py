@@ -47,7 +47,7 @@ def run(labels: Sequence[str | os.PathLike[str]], metakernel: str | os.PathLike[
     kset = KernelSet.from_metakernel(metakernel)
     Path(out_dir).mkdir(parents=True, exist_ok=True)
     cluster = None if scheduler else LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                                                  dashboard_address=None)
+                                                  dashboard_address=":0")
     try:
         with Client(scheduler or cluster) as client:
             register_kernels(client, kset)
