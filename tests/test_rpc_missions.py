@@ -18,6 +18,11 @@ from lunarmap.camera.factory import camera_from_isd
 from lunarmap.orientation.drivers import image_support
 from lunarmap.orientation.exterior import ExteriorOrientation
 from lunarmap.rpc import fit_many, fit_rpc
+from lunarmap.testing.cameras import nac_like_interior
+
+
+def nac_like_interior_short():
+    return nac_like_interior(n_lines=2000)
 
 
 @pytest.fixture(scope="module")
@@ -68,13 +73,21 @@ def test_fit_many_on_a_two_process_cluster_equals_serial():
     from lunarmap.camera import FrameCamera, Shape
     from lunarmap.testing.cameras import frame_interior, polar_orbit_eo
 
+    from lunarmap.camera import LineScanCamera
+    from lunarmap.testing.cameras import NAC_LINE_TIME
+
     cams = [FrameCamera(frame_interior(), polar_orbit_eo(lat_center=lat, lon=10.0, altitude=100e3, half_span=1.0,
                                                          step=0.1), Shape.moon(), time=0.0)
             for lat in (-30.0, 0.0, 45.0)]
+    # a short line scan: its EO must reach the workers bit-exact (lunarmap.rpc.parallel.ExactCamera)
+    cams.append(LineScanCamera(nac_like_interior_short(), polar_orbit_eo(half_span=1.0, step=0.05, flip=True),
+                               Shape.moon(), line_times=(-0.5, NAC_LINE_TIME)))
     serial = [fit_rpc(c) for c in cams]
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                                   silence_logs=40) as cluster, distributed.Client(cluster) as client:
         par = fit_many(cams, client=client, tile_lines=4)
-    for s, p in zip(serial, par):
+        fused = fit_many(cams, client=client)
+    for s, p, f in zip(serial, par, fused):
+        np.testing.assert_array_equal(f.model.coefficients, s.model.coefficients)
         np.testing.assert_array_equal(p.model.coefficients, s.model.coefficients)
         assert p.check == s.check

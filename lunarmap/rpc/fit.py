@@ -359,13 +359,22 @@ def fit_rpc(camera: CameraModel, height_range: tuple[float, float] | None = None
     layers = height_layers(opts.height_range, opts.n_layers, opts.margin)
     io = camera.interior
     nodes = fit_grid_nodes(io.n_lines, io.n_samples, layers, opts.short_axis, opts.long_axis_max)
-    grid = rigorous_grid(camera, nodes, opts.max_emission)
-    return fit_from_grid(camera, grid, nodes, layers, opts, check)
+    # One BLAS thread for the whole fit: see lunarmap.rpc._blas (and dask
+    # workers run one, so serial and distributed results are bitwise equal).
+    with single_threaded_blas():
+        grid = rigorous_grid(camera, nodes, opts.max_emission)
+        return fit_from_grid(camera, grid, nodes, layers, opts, check)
 
 
 def fit_from_grid(camera: CameraModel, grid: GroundGrid, nodes: GridNodes, layers: Array, opts: FitOptions,
                   check: bool = True, check_grid: GroundGrid | None = None) -> RpcFit:
     """:func:`fit_rpc` after the rigorous grid is computed (the dask path computes it in tiles)."""
+    with single_threaded_blas():
+        return _fit_from_grid(camera, grid, nodes, layers, opts, check, check_grid)
+
+
+def _fit_from_grid(camera: CameraModel, grid: GroundGrid, nodes: GridNodes, layers: Array, opts: FitOptions,
+                   check: bool, check_grid: GroundGrid | None) -> RpcFit:
     io = camera.interior
     model, lam, min_den = fit_rfm(grid, io.n_lines, io.n_samples, (float(layers[0]), float(layers[-1])),
                                   camera.shape.reference_radius, opts, _provenance(camera, opts, layers, nodes))

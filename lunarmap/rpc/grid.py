@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..camera.geodesy import xyz_to_lonlat_height
+from ._blas import single_threaded_blas
 from .exceptions import RpcGridError, RpcInputError, RpcLimbError
 
 __all__ = ["GridNodes", "GroundGrid", "CameraModel", "height_layers", "fit_grid_nodes", "check_grid_nodes",
@@ -178,6 +179,11 @@ def rigorous_grid(camera: CameraModel, nodes: GridNodes, max_emission: float = 8
         Some rays miss the body, or graze it beyond ``max_emission``: the
         footprint crosses the limb.
     """
+    with single_threaded_blas():
+        return _rigorous_grid(camera, nodes, max_emission)
+
+
+def _rigorous_grid(camera: CameraModel, nodes: GridNodes, max_emission: float) -> GroundGrid:
     L, S = np.meshgrid(nodes.lines, nodes.samples, indexing="ij")
     line = np.broadcast_to(L.ravel(), (nodes.heights.size, L.size))
     sample = np.broadcast_to(S.ravel(), (nodes.heights.size, S.size))

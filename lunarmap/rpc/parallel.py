@@ -11,10 +11,23 @@ together, on a ``distributed.Client`` when given one.
 
 No SPICE is needed on the workers: cameras are plain numpy objects that
 pickle (build them from ISDs first, see ``lunarmap.camera.factory``).
+They are shipped bit-exact (:class:`ExactCamera`): ``ExteriorOrientation``'s
+own pickling re-normalises the quaternions on load, which moves their last
+bits on every round trip, so a worker's camera would not be the caller's.
+
+Measured on a 2-core machine: distributed's default worker environment
+``MALLOC_TRIM_THRESHOLD_=65536`` doubled the CPU time of a fit (large numpy
+temporaries are then mmap-ed and page-faulted afresh each time); clusters
+for RPC work are better started without it, e.g. with
+``dask.config.set({"distributed.nanny.pre-spawn-environ":
+WORKER_ENVIRON})`` (:data:`WORKER_ENVIRON`), as ``bench/bench_rpc.py`` does.
 """
 
 from __future__ import annotations
 
+import copyreg
+import io
+import pickle
 from dataclasses import asdict
 from typing import Any, Sequence
 
@@ -23,14 +36,67 @@ import numpy as np
 from dask.delayed import Delayed
 
 from .exceptions import RpcInputError
-from .fit import FitOptions, RpcFit, fit_from_grid
+from .fit import FitOptions, RpcFit, fit_from_grid, fit_rpc
 from .grid import CameraModel, GridNodes, GroundGrid, check_grid_nodes, fit_grid_nodes, height_layers, rigorous_grid
 
-__all__ = ["rigorous_grid_delayed", "fit_rpc_delayed", "fit_many"]
+__all__ = ["rigorous_grid_delayed", "fit_rpc_delayed", "fit_many", "ExactCamera", "WORKER_ENVIRON"]
+
+#: Worker environment for RPC clusters: one BLAS/OpenMP thread per worker
+#: thread, and no ``MALLOC_TRIM_THRESHOLD_`` (see the module notes).
+WORKER_ENVIRON = {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1}
 
 
-def _tile(camera: CameraModel, nodes: GridNodes, max_emission: float) -> GroundGrid:
-    return rigorous_grid(camera, nodes, max_emission)
+def _restore(cls: type, state: dict[str, Any]) -> Any:
+    obj = object.__new__(cls)
+    for k, v in state.items():
+        object.__setattr__(obj, k, v)
+    return obj
+
+
+def _exact_reduce(obj: Any) -> tuple[Any, ...]:
+    return _restore, (type(obj), dict(vars(obj)))
+
+
+class ExactCamera:
+    """A camera that pickles bit-exact (its ExteriorOrientation state is copied, not rebuilt).
+
+    ``ExactCamera(camera).camera`` is the camera; on unpickling, the
+    exterior orientation's arrays and interpolants are restored as they
+    were instead of being re-normalised (see the module notes).
+    """
+
+    def __init__(self, camera: CameraModel) -> None:
+        self.camera = camera
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        from ..orientation.exterior import ExteriorOrientation  # noqa: PLC0415
+
+        buf = io.BytesIO()
+        pickler = pickle.Pickler(buf, protocol=pickle.HIGHEST_PROTOCOL)
+        pickler.dispatch_table = copyreg.dispatch_table.copy()
+        pickler.dispatch_table[ExteriorOrientation] = _exact_reduce
+        pickler.dump(self.camera)
+        return _load_exact, (buf.getvalue(),)
+
+
+def _load_exact(data: bytes) -> "ExactCamera":
+    return ExactCamera(pickle.loads(data))
+
+
+def _unwrap(cam: CameraModel | ExactCamera) -> CameraModel:
+    return cam.camera if isinstance(cam, ExactCamera) else cam
+
+
+def _fit_from_grid_exact(cam: ExactCamera, *args: Any) -> RpcFit:
+    return fit_from_grid(cam.camera, *args)
+
+
+def _fit_exact(cam: ExactCamera, check: bool, options: FitOptions) -> RpcFit:
+    return fit_rpc(cam.camera, check=check, options=options)
+
+
+def _tile(camera: CameraModel | ExactCamera, nodes: GridNodes, max_emission: float) -> GroundGrid:
+    return rigorous_grid(_unwrap(camera), nodes, max_emission)
 
 
 def _stitch(parts: list[GroundGrid], n_heights: int, n_samples: int) -> GroundGrid:
@@ -79,22 +145,26 @@ def fit_rpc_delayed(camera: CameraModel, height_range: tuple[float, float] | Non
     height_range, check, options, **option_overrides
         As for :func:`~lunarmap.rpc.fit.fit_rpc`.
     tile_lines : int, optional
-        Grid lines per rigorous-evaluation tile; ``None``: one tile per grid
-        (the right choice when many images already fill the workers).
+        Grid lines per rigorous-evaluation tile (fit grid -> fit -> check
+        grid -> report as separate tasks); ``None``: the whole fit is one
+        task (the right choice when many images already fill the workers).
     """
     opts = _options(height_range, options, option_overrides)
+    if tile_lines is None:
+        # one task per image: nothing to ship between workers but the result
+        return dask.delayed(_fit_exact, pure=True)(ExactCamera(camera), check, opts)
     io = camera.interior
     layers = height_layers(opts.height_range, opts.n_layers, opts.margin)
     nodes = fit_grid_nodes(io.n_lines, io.n_samples, layers, opts.short_axis, opts.long_axis_max)
-    cam = dask.delayed(camera, traverse=False)
-    tl = tile_lines or nodes.lines.size
-    grid = rigorous_grid_delayed(cam, nodes, tl, opts.max_emission)
+    # the wrapper travels between workers with the tasks that need the camera
+    cam = dask.delayed(ExactCamera(camera), traverse=False)
+    grid = rigorous_grid_delayed(cam, nodes, tile_lines, opts.max_emission)
     check_grid = None
     if check:
         cnodes = check_grid_nodes(io.n_lines, io.n_samples, layers, opts.short_axis, opts.long_axis_max,
                                   opts.check_density, opts.check_outside)
-        check_grid = rigorous_grid_delayed(cam, cnodes, tile_lines or cnodes.lines.size, 90.0)
-    return dask.delayed(fit_from_grid, pure=True)(cam, grid, nodes, layers, opts, check, check_grid)
+        check_grid = rigorous_grid_delayed(cam, cnodes, tile_lines, 90.0)
+    return dask.delayed(_fit_from_grid_exact, pure=True)(cam, grid, nodes, layers, opts, check, check_grid)
 
 
 def fit_many(cameras: Sequence[CameraModel], height_ranges: Sequence[tuple[float, float] | None] | None = None,
