@@ -107,9 +107,7 @@ class ExteriorOrientation:
         object.__setattr__(self, "sun_times", sun_t)
         object.__setattr__(self, "sun_positions", sun)
         object.__setattr__(self, "attrs", dict(self.attrs))
-        if n > 1:
-            object.__setattr__(self, "_pos_spline", CubicHermiteSpline(times, pos, vel, axis=0))
-            object.__setattr__(self, "_quat_spline", CubicSpline(times, quat, axis=0))
+        self._build_splines()
 
     # -- interpolation -------------------------------------------------
     def position_at(self, t: ArrayLike) -> NDArray[np.float64]:
@@ -189,6 +187,22 @@ class ExteriorOrientation:
         return (_rebuild, (self.epoch, self.times, self.positions, self.velocities, self.quaternions,
                            self.sun_times, self.sun_positions, self.body_frame, self.attrs))
 
+    def _build_splines(self) -> None:
+        if self.times.size > 1:
+            object.__setattr__(self, "_pos_spline", CubicHermiteSpline(self.times, self.positions,
+                                                                       self.velocities, axis=0))
+            object.__setattr__(self, "_quat_spline", CubicSpline(self.times, self.quaternions, axis=0))
 
-def _rebuild(*args: Any) -> ExteriorOrientation:
-    return ExteriorOrientation(*args)
+
+def _rebuild(epoch: float, times: NDArray[np.float64], positions: NDArray[np.float64],
+             velocities: NDArray[np.float64], quaternions: NDArray[np.float64], sun_times: NDArray[np.float64],
+             sun_positions: NDArray[np.float64], body_frame: str, attrs: dict[str, Any]) -> ExteriorOrientation:
+    # The state was validated and normalised when first built; restoring it bit for bit (no
+    # re-normalisation) keeps results of unpickled copies on dask workers identical to the original's.
+    eo = object.__new__(ExteriorOrientation)
+    for name, value in (("epoch", epoch), ("times", times), ("positions", positions), ("velocities", velocities),
+                        ("quaternions", quaternions), ("sun_times", sun_times), ("sun_positions", sun_positions),
+                        ("body_frame", body_frame), ("attrs", dict(attrs))):
+        object.__setattr__(eo, name, value)
+    eo._build_splines()
+    return eo
