@@ -107,7 +107,7 @@ class AdjustmentResult:
         if self._precision is None:
             from .precision import posterior_precision
 
-            self._precision = posterior_precision(self, method=method)
+            self._precision = posterior_precision(self, method=method, redundancy=True)
         return self._precision
 
     # --- datasets --------------------------------------------------------
