@@ -31,7 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from .exceptions import AdjustmentDivergedError
+from .exceptions import AdjustmentDivergedError, DatumDefectError
 from .factor import factorize
 from .problem import BundleProblem
 from .schur import SchurStructure, inv_sym3
@@ -321,7 +321,14 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
     while n_iter < opt.max_iterations:
         n_iter += 1
         S, rhs, Vinv, _ = reduced_system(lin, structure, terms, mu, free_red)
-        solve_S = factorize(S, opt.backend)
+        try:
+            solve_S = factorize(S, opt.backend)
+        except DatumDefectError:
+            # rounding made the damped system indefinite (very weak points): damp more, as for a rejected step
+            if mu > 1e32:
+                raise
+            mu, nu = max(mu, 1e-12) * nu, 2.0 * nu
+            continue
         dred = np.zeros(free_red.size)
         dred[free_red] = solve_S(rhs)
         dp = back_substitute(lin, structure, Vinv, dred, terms, problem)
