@@ -46,6 +46,9 @@ class InterestPoints(tuple):
     def __len__(self) -> int:  # number of points, not of fields
         return int(self[0].size)
 
+    def __reduce__(self):  # pickle (dask workers) through the 3-argument constructor
+        return (InterestPoints, (self[0], self[1], self[2]))
+
 
 def invalid_mask(image: NDArray, saturation: float | None = None) -> NDArray[np.bool_]:
     """True at NaN/infinite pixels and at pixels ``>= saturation`` (grey levels)."""

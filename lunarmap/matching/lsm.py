@@ -10,7 +10,7 @@ template centre in image 1, ``(a0, b0)`` the conjugate of the centre in image
 ``h0, h1`` the radiometric offset and gain. It is solved by Gauss-Newton;
 each iteration samples ``g2`` and its exact derivatives by cubic convolution
 (a C1 interpolant, so the iteration does not bounce on the kinks of bilinear
-interpolation at pixel edges and the gradients belong to the fitted surface), forms every match's 8 x 8 normal equations with one ``einsum`` and
+interpolation at pixel edges and the gradients belong to the fitted surface), forms every match's 8 x 8 normal equations with one batched matrix product and
 solves them all with one batched ``numpy.linalg.solve``.
 
 Precision: ``sigma0^2 = v'v / (n - 8)`` and ``C = sigma0^2 N^-1``; the standard
@@ -107,6 +107,20 @@ def lsm_match(image1: NDArray, image2: NDArray, line1: Array, sample1: Array, li
     return out
 
 
+def _jacobian(hdl: Array, hds: Array, g2: Array, u: Array, w: Array) -> Array:
+    """Columns of Eq. (14) linearised: d/d(a0, a1, a2, b0, b1, b2, h0, h1), filled in place."""
+    jac = np.empty(g2.shape + (8,))
+    jac[..., 0] = hdl
+    np.multiply(hdl, u, out=jac[..., 1])
+    np.multiply(hdl, w, out=jac[..., 2])
+    jac[..., 3] = hds
+    np.multiply(hds, u, out=jac[..., 4])
+    np.multiply(hds, w, out=jac[..., 5])
+    jac[..., 6] = 1.0
+    jac[..., 7] = g2
+    return jac
+
+
 def _lsm_batch(image1: NDArray, image2: Array, l1: Array, s1: Array, l2: Array, s2: Array, aff: Array,
                half: int, max_iter: int, tol: float, max_shift: float, out: LsmResult,
                idx: NDArray[np.intp]) -> None:
@@ -123,7 +137,6 @@ def _lsm_batch(image1: NDArray, image2: Array, l1: Array, s1: Array, l2: Array, 
     active = np.all(np.isfinite(g1), axis=1) & np.all(np.isfinite(p), axis=1)
     conv = np.zeros(l1.size, dtype=bool)
     iters = np.zeros(l1.size, dtype=np.int64)
-    ones = np.ones(npx)
     for _ in range(max_iter):
         a = np.flatnonzero(active)
         if a.size == 0:
@@ -135,13 +148,12 @@ def _lsm_batch(image1: NDArray, image2: Array, l1: Array, s1: Array, l2: Array, 
         bad = ~np.all(np.isfinite(g2), axis=1)
         h0, h1 = pa[:, 6:7], pa[:, 7:8]
         r = g1[a] - (h0 + h1 * g2)
-        hdl, hds = h1 * dl, h1 * ds
-        jac = np.stack([hdl, hdl * u, hdl * w, hds, hds * u, hds * w,
-                        np.broadcast_to(ones, g2.shape), g2], axis=-1)  # (k, npx, 8)
-        jac = np.where(bad[:, None, None], 0.0, jac)
-        r = np.where(bad[:, None], 0.0, r)
-        nmat = np.einsum("kpi,kpj->kij", jac, jac)
-        rhs = np.einsum("kpi,kp->ki", jac, r)
+        jac = _jacobian(h1 * dl, h1 * ds, g2, u, w)  # (k, npx, 8)
+        jac[bad] = 0.0
+        r[bad] = 0.0
+        jt = jac.transpose(0, 2, 1)
+        nmat = jt @ jac  # batched GEMM: much faster than einsum for (k, 8, npx) x (k, npx, 8)
+        rhs = (jt @ r[..., None])[..., 0]
         # Guard singular systems (flat windows): they are dropped below.
         cond_ok = np.linalg.det(nmat) > 0
         nmat[~cond_ok] = np.eye(8)
@@ -167,10 +179,8 @@ def _lsm_batch(image1: NDArray, image2: Array, l1: Array, s1: Array, l2: Array, 
         g2, dl, ds = bicubic_with_gradient(image2, gl2, gs2)
         h0, h1 = pk[:, 6:7], pk[:, 7:8]
         r = g1[k] - (h0 + h1 * g2)
-        hdl, hds = h1 * dl, h1 * ds
-        jac = np.stack([hdl, hdl * u, hdl * w, hds, hds * u, hds * w, np.broadcast_to(ones, g2.shape), g2],
-                       axis=-1)
-        nmat = np.einsum("kpi,kpj->kij", jac, jac)
+        jac = _jacobian(h1 * dl, h1 * ds, g2, u, w)
+        nmat = jac.transpose(0, 2, 1) @ jac
         s0sq = np.sum(r * r, axis=1) / (npx - 8)
         with np.errstate(invalid="ignore"):
             cov = np.linalg.inv(nmat) * s0sq[:, None, None]
