@@ -9,7 +9,8 @@ timed in the same run, next to the absolute rate:
    NAC-like 10 deg stereo pair. Reports matches per second per core.
 2. ``dask``: :func:`lunarmap.matching.find_tiepoints` on a 4-image set
    (6 pairs), serial (``scheduler="sync"``) against a 2-worker
-   ``distributed.LocalCluster`` (1 thread per worker).
+   ``distributed.LocalCluster`` (1 thread per worker), with worker processes
+   and with in-process workers (threads; numpy releases the GIL).
 
     python bench/bench_matching.py [--size 512] [--repeat 3]
 
@@ -95,15 +96,18 @@ def bench_dask(size: int, repeat: int) -> dict:
     out = {}
     t_serial = best_of(lambda: out.__setitem__("s", find_tiepoints(imgs, cams, params=params, scheduler="sync")),
                        repeat)
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
-            Client(cluster) as client:
-        find_tiepoints(imgs, cams, params=params, scheduler=client)  # warm-up: imports on the workers
-        t_cluster = best_of(lambda: out.__setitem__("c", find_tiepoints(imgs, cams, params=params,
-                                                                        scheduler=client)), repeat)
+    for label, procs in (("processes", True), ("threads", False)):
+        with LocalCluster(n_workers=2, threads_per_worker=1, processes=procs, dashboard_address=None) as cluster, \
+                Client(cluster) as client:
+            find_tiepoints(imgs, cams, params=params, scheduler=client)  # warm-up: imports on the workers
+            out[f"t_{label}"] = best_of(lambda: out.__setitem__("c", find_tiepoints(imgs, cams, params=params,
+                                                                                    scheduler=client)), repeat)
+    t_cluster = out["t_processes"]
     same = bool(out["s"].sizes == out["c"].sizes and np.allclose(out["s"].line, out["c"].line))
     return dict(images=4, pairs=6, image_size=size, observations=int(out["s"].sizes["observation"]),
                 tie_points=int(out["s"].point_id.max() + 1), serial_s=t_serial, cluster_2_workers_s=t_cluster,
-                speedup_2_workers=t_serial / t_cluster, cluster_result_equals_serial=same)
+                speedup_2_workers=t_serial / t_cluster, cluster_2_workers_in_process_s=out["t_threads"],
+                speedup_2_workers_in_process=t_serial / out["t_threads"], cluster_result_equals_serial=same)
 
 
 def main() -> None:
@@ -123,7 +127,8 @@ def main() -> None:
         D = r["dask"]
         print(f"tie points, 4 images x {args.size}^2, 6 pairs: serial {D['serial_s']:.2f} s, 2-worker LocalCluster "
               f"{D['cluster_2_workers_s']:.2f} s -> speed-up x{D['speedup_2_workers']:.2f} "
-              f"(same result: {D['cluster_result_equals_serial']})")
+              f"(same result: {D['cluster_result_equals_serial']}); in-process 2-worker cluster "
+              f"{D['cluster_2_workers_in_process_s']:.2f} s -> x{D['speedup_2_workers_in_process']:.2f}")
     r["load_avg_end"] = os.getloadavg()
     print(json.dumps(r))
 
