@@ -25,6 +25,24 @@ __all__ = [
     "ConvergenceError",
     "LunarmapWarning",
     "warn",
+    "RpcError",
+    "RpcInputError",
+    "RpcFormatError",
+    "RpcGridError",
+    "RpcLimbError",
+    "RpcFitError",
+    "RpcConvergenceError",
+    "MatchingWarning",
+    "BlankTileWarning",
+    "NoOverlapWarning",
+    "InvalidPixelsWarning",
+    "SimulationWarning",
+    "AdjustmentError",
+    "AdjustmentInputError",
+    "InsufficientObservationsError",
+    "UnobservedParameterError",
+    "DatumDefectError",
+    "AdjustmentDivergedError",
 ]
 
 
@@ -86,3 +104,86 @@ class LunarmapWarning(UserWarning):
 def warn(message: str, category: type[Warning] = LunarmapWarning, stacklevel: int = 2) -> None:
     """Issue a lunarmap warning, attributed to the caller's caller."""
     warnings.warn(message, category, stacklevel=stacklevel + 1)
+
+
+# --- Rational function models (lunarmap.rpc) -------------------------------
+
+class RpcError(LunarmapError):
+    """Base class of the RPC package's errors."""
+
+
+class RpcInputError(RpcError, InvalidInputError):
+    """An argument of an RPC function is unusable (NaN, empty height range, wrong shape)."""
+
+
+class RpcFormatError(RpcError, InvalidInputError):
+    """An RPC file or dataset is malformed: missing keyword, wrong count, non-finite value."""
+
+
+class RpcGridError(RpcError, NoIntersectionError):
+    """The virtual control grid cannot be built: its rays miss the body."""
+
+
+class RpcLimbError(RpcGridError):
+    """The image footprint reaches the limb: some grid rays miss the body or graze it."""
+
+
+class RpcFitError(RpcError, GeometryError):
+    """The fitted rational function is unusable (denominator near zero, footprint over a pole)."""
+
+
+class RpcConvergenceError(RpcError, ConvergenceError):
+    """The RFM image-to-ground Newton iteration did not converge."""
+
+
+# --- Tie-point matching (lunarmap.matching) --------------------------------
+
+class MatchingWarning(LunarmapWarning):
+    """Base class of matching warnings: some points could not be detected or matched."""
+
+
+class BlankTileWarning(MatchingWarning):
+    """A tile has no usable texture (constant, saturated or mostly NaN); no interest points there."""
+
+
+class NoOverlapWarning(MatchingWarning):
+    """Two images do not overlap (no predicted conjugate inside the second image)."""
+
+
+class InvalidPixelsWarning(MatchingWarning):
+    """An image holds NaN, infinite or saturated pixels; windows touching them are not matched."""
+
+
+# --- Image simulation (lunarmap.simulate) ----------------------------------
+
+class SimulationWarning(LunarmapWarning):
+    """A rendered image is incomplete: some pixels see no DTM or orthoimage and are NaN."""
+
+
+# --- Block adjustment (lunarmap.adjust) ------------------------------------
+
+class AdjustmentError(LunarmapError):
+    """Base class of block-adjustment errors."""
+
+
+class AdjustmentInputError(AdjustmentError, InvalidInputError):
+    """An adjustment input is unusable (NaN, wrong shape, index out of range, bad sigma)."""
+
+
+class InsufficientObservationsError(AdjustmentInputError):
+    """Fewer observations than unknowns: the problem has no redundancy."""
+
+
+class UnobservedParameterError(AdjustmentInputError):
+    """An image or point has no (or too few) observations to determine its unknowns."""
+
+
+class DatumDefectError(AdjustmentError):
+    """The normal equations are singular: the datum (gauge) is not defined.
+
+    Add control points, navigation observations, or fix parameters.
+    """
+
+
+class AdjustmentDivergedError(AdjustmentError, ConvergenceError):
+    """The Levenberg-Marquardt iteration could not reduce the cost any further from a non-finite state."""

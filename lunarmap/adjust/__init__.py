@@ -2,7 +2,7 @@
 
 from .bal import BALData, bal_to_problem, problem_to_bal_cameras, read_bal, write_bal
 from .collinearity import FrameModel, frame_jacobians, project_frame
-from .exceptions import (
+from ..errors import (
     AdjustmentDivergedError,
     AdjustmentError,
     AdjustmentInputError,

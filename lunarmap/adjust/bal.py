@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .collinearity import FrameModel
-from .exceptions import AdjustmentInputError
+from ..errors import AdjustmentInputError
 from .problem import BundleProblem, ImageObservations, PointPriors
 from .rotation import matrix_to_rotvec, rotate, rotvec_to_matrix
 

@@ -18,7 +18,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .exceptions import DatumDefectError
+from ..errors import DatumDefectError
 
 __all__ = ["factorize", "available_backends"]
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .exceptions import AdjustmentInputError, UnobservedParameterError
+from ..errors import AdjustmentInputError, UnobservedParameterError
 from .schur import aggregation_matrix, inv_sym3
 
 __all__ = ["IntersectionResult", "intersect_points", "midpoint_intersection"]

@@ -21,7 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from .exceptions import AdjustmentInputError
+from ..errors import AdjustmentInputError
 
 __all__ = ["NavigationObservations"]
 

@@ -24,7 +24,7 @@ import numpy as np
 import scipy.linalg as sla
 from numpy.typing import NDArray
 
-from .exceptions import DatumDefectError
+from ..errors import DatumDefectError
 from .schur import inv_sym3
 
 __all__ = ["Precision", "posterior_precision", "ordered_track_pairs"]

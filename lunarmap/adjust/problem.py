@@ -24,7 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from .exceptions import AdjustmentInputError, InsufficientObservationsError, UnobservedParameterError
+from ..errors import AdjustmentInputError, InsufficientObservationsError, UnobservedParameterError
 
 __all__ = ["ImageObservations", "PointPriors", "ReducedTerm", "BundleProblem"]
 

@@ -31,7 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from .exceptions import AdjustmentDivergedError, DatumDefectError
+from ..errors import AdjustmentDivergedError, DatumDefectError
 from .factor import factorize
 from .problem import BundleProblem
 from .schur import SchurStructure, inv_sym3
@@ -386,7 +386,7 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
 
 def _check_datum(S0: sp.csr_matrix, backend: str) -> None:
     """Raise DatumDefectError if the undamped, Jacobi-scaled reduced system is numerically singular."""
-    from .exceptions import DatumDefectError
+    from ..errors import DatumDefectError
 
     d = S0.diagonal()
     if np.any(d <= 0) or not np.all(np.isfinite(d)):

@@ -2,7 +2,7 @@
 least-squares matching (Eq. 14 of the LROC multi-image study), RANSAC, multi-image tracks,
 the tie-point table (netCDF) and its dask graph."""
 
-from .exceptions import BlankTileWarning, InvalidPixelsWarning, MatchingWarning, NoOverlapWarning
+from ..errors import BlankTileWarning, InvalidPixelsWarning, MatchingWarning, NoOverlapWarning
 from .interest import InterestPoints, foerstner, invalid_mask
 from .lsm import LsmResult, lsm_match
 from .ncc import NccResult, ncc_match, window_offsets

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from ..errors import InvalidInputError, warn
-from .exceptions import BlankTileWarning
+from ..errors import BlankTileWarning
 
 __all__ = ["foerstner", "InterestPoints", "invalid_mask"]
 

@@ -14,7 +14,7 @@ import xarray as xr
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InvalidInputError, warn
-from .exceptions import InvalidPixelsWarning, NoOverlapWarning
+from ..errors import InvalidPixelsWarning, NoOverlapWarning
 from .interest import invalid_mask
 from .lsm import lsm_match
 from .ncc import ncc_match

@@ -9,7 +9,7 @@
 * :func:`fit_many` / :func:`fit_rpc_delayed` -- dask graphs.
 """
 
-from .exceptions import (RpcConvergenceError, RpcError, RpcFitError, RpcFormatError, RpcGridError, RpcInputError,
+from ..errors import (RpcConvergenceError, RpcError, RpcFitError, RpcFormatError, RpcGridError, RpcInputError,
                          RpcLimbError)
 from .fit import FitOptions, FitReport, RpcFit, check_fit, fit_from_grid, fit_rfm, fit_rpc
 from .grid import (DEFAULT_HEIGHT_RANGE, GridNodes, GroundGrid, check_grid_nodes, fit_grid_nodes, height_layers,

@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._blas import single_threaded_blas
-from .exceptions import RpcFitError, RpcInputError
+from ..errors import RpcFitError, RpcInputError
 from .grid import (DEFAULT_HEIGHT_RANGE, CameraModel, GridNodes, GroundGrid, check_grid_nodes, fit_grid_nodes,
                    height_layers, rigorous_grid)
 from .model import RationalFunctionModel

@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..camera.geodesy import xyz_to_lonlat_height
 from ._blas import single_threaded_blas
-from .exceptions import RpcGridError, RpcInputError, RpcLimbError
+from ..errors import RpcGridError, RpcInputError, RpcLimbError
 
 __all__ = ["GridNodes", "GroundGrid", "CameraModel", "height_layers", "fit_grid_nodes", "check_grid_nodes",
            "rigorous_grid", "DEFAULT_HEIGHT_RANGE"]

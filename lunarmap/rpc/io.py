@@ -37,7 +37,7 @@ import numpy as np
 import xarray as xr
 
 from ..camera.shape import MOON_RADIUS
-from .exceptions import RpcFormatError
+from ..errors import RpcFormatError
 from .model import RationalFunctionModel
 
 __all__ = ["write_netcdf", "read_netcdf", "write_rpc_txt", "read_rpc_txt", "rpc_txt_keywords",

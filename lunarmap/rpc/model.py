@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..camera.geodesy import lonlat_height_to_xyz, xyz_to_lonlat_height
 from ..camera.shape import MOON_RADIUS
-from .exceptions import RpcConvergenceError, RpcFormatError, RpcInputError
+from ..errors import RpcConvergenceError, RpcFormatError, RpcInputError
 from .terms import N_TERMS, TERM_NAMES, rpc_term_gradients, rpc_terms
 
 __all__ = ["RationalFunctionModel", "POLYNOMIALS", "COORDINATES"]

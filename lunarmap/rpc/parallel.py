@@ -35,7 +35,7 @@ import dask
 import numpy as np
 from dask.delayed import Delayed
 
-from .exceptions import RpcInputError
+from ..errors import RpcInputError
 from .fit import FitOptions, RpcFit, fit_from_grid, fit_rpc
 from .grid import CameraModel, GridNodes, GroundGrid, check_grid_nodes, fit_grid_nodes, height_layers, rigorous_grid
 

@@ -1,6 +1,6 @@
 """Image simulation with known truth: synthetic terrain and albedo, and a DTM + orthoimage renderer."""
 
-from .exceptions import SimulationWarning
+from ..errors import SimulationWarning
 from .render import RenderSpec, render_image, surface_normals
 from .sampling import RasterSampler
 from .stereo import look_angle_for_emission, pointed_camera, stereo_pair

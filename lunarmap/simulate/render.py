@@ -31,7 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..camera.intersect import DtmSampler
 from ..errors import InvalidInputError, warn
-from .exceptions import SimulationWarning
+from ..errors import SimulationWarning
 from .sampling import RasterSampler
 
 __all__ = ["render_image", "surface_normals", "RenderSpec"]
