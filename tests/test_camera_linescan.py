@@ -213,3 +213,41 @@ def test_round_trip_with_distortion_across_the_line(model, coeffs, flip, detecto
     sample = rng.uniform(0, NAC_SAMPLES, 2000)
     l2, s2 = cam.ground_to_image(cam.image_to_ground(line, sample, height=1000.0))
     assert np.max(np.abs(l2 - line)) <= 1e-4 and np.max(np.abs(s2 - sample)) <= 1e-4
+
+
+def test_table_error_bound_is_an_upper_bound_and_exact_path_agrees(monkeypatch, pixels) -> None:
+    """The per-line EO table's stated error bound holds, and skipping the exact EO step changes nothing."""
+    import lunarmap.camera.linescan as ls
+
+    cam = _camera(flip=True)
+    tab = cam._build_table()
+    assert tab["exact_px"] < ls._TABLE_EXACT_PX          # the fast path is taken for this camera
+    # oracle: the rigorous residual with the EO's own interpolation at random (non-node) lines
+    rng = np.random.default_rng(5)
+    line = rng.uniform(0, NAC_LINES, 5000)
+    sample = rng.uniform(0, NAC_SAMPLES, 5000)
+    xyz = cam.image_to_ground(line, sample)
+    trial = line + rng.uniform(-0.5, 0.5, line.size)
+    r_tab, s_tab, _ = cam._residual_table(tab, xyz, trial)
+    r_ex, s_ex, _ = cam._residual_exact(xyz, trial)
+    assert np.abs(r_tab - r_ex).max() <= tab["exact_px"]
+    assert np.abs(s_tab - s_ex).max() <= tab["exact_px"]
+    fast = cam.ground_to_image(xyz)
+    monkeypatch.setattr(ls, "_TABLE_EXACT_PX", -1.0)    # force the exact Newton step
+    exact = cam.ground_to_image(xyz)
+    assert np.abs(fast[0] - exact[0]).max() <= 1e-6 and np.abs(fast[1] - exact[1]).max() <= 1e-6
+    assert np.hypot(exact[0] - line, exact[1] - sample).max() <= 1e-6
+
+
+def test_bracketed_fallback_gives_the_same_answer(monkeypatch) -> None:
+    """Points the fast secant gives up on go through the safeguarded bracketed secant."""
+    import lunarmap.camera.linescan as ls
+
+    cam = _camera(lat=85.0)
+    rng = np.random.default_rng(6)
+    line = rng.uniform(0, NAC_LINES, 3000)
+    sample = rng.uniform(0, NAC_SAMPLES, 3000)
+    xyz = cam.image_to_ground(line, sample, height=1500.0)
+    monkeypatch.setattr(ls, "_MAX_FAST", 0)              # no fast-path step converges
+    l2, s2 = cam.ground_to_image(xyz)
+    assert np.hypot(l2 - line, s2 - sample).max() <= 1e-6
