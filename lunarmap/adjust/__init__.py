@@ -13,6 +13,7 @@ from ..errors import (
 from .factor import available_backends, factorize
 from .problem import BundleProblem, ImageObservations, PointPriors, ReducedTerm
 from .result import AdjustmentResult
+from .rfm_affine import AffineRFMModel
 from .solver import AdjustmentState, SolverOptions, solve
 
 __all__ = [
@@ -23,4 +24,5 @@ __all__ = [
     "available_backends", "factorize",
     "BundleProblem", "ImageObservations", "PointPriors", "ReducedTerm",
     "AdjustmentResult", "AdjustmentState", "SolverOptions", "solve",
+    "AffineRFMModel",
 ]
