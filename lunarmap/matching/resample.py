@@ -1,4 +1,4 @@
-"""Vectorised bilinear resampling of images at continuous CSM pixel coordinates.
+"""Vectorised bilinear and cubic-convolution resampling of images at continuous CSM pixel coordinates.
 
 CSM convention: the centre of array element ``[i, j]`` is at ``(line, sample) =
 (i + 0.5, j + 0.5)``. Samples outside the pixel-centre hull are NaN, and NaN
@@ -11,7 +11,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["bilinear", "bicubic_with_gradient"]
+from ..errors import InvalidInputError
+
+__all__ = ["bilinear", "bicubic", "bicubic_with_gradient"]
 
 Array = NDArray[np.float64]
 
@@ -60,15 +62,74 @@ def bilinear(image: NDArray, line: ArrayLike, sample: ArrayLike) -> Array:
     return np.where(mask, out, np.nan)
 
 
-def _keys(t: Array) -> tuple[Array, Array]:
-    """Keys (1981) cubic-convolution weights (a = -0.5) of the 4 taps and their derivatives."""
+def _keys(t: Array) -> tuple[Array, Array, Array, Array]:
+    """Keys (1981) cubic-convolution weights (a = -0.5) of the 4 taps at fractional offset ``t``."""
     t2 = t * t
     t3 = t2 * t
-    w = np.stack([-0.5 * t3 + t2 - 0.5 * t, 1.5 * t3 - 2.5 * t2 + 1.0,
-                  -1.5 * t3 + 2.0 * t2 + 0.5 * t, 0.5 * t3 - 0.5 * t2], axis=-1)
-    dw = np.stack([-1.5 * t2 + 2.0 * t - 0.5, 4.5 * t2 - 5.0 * t,
-                   -4.5 * t2 + 4.0 * t + 0.5, 1.5 * t2 - t], axis=-1)
-    return w, dw
+    return (-0.5 * t3 + t2 - 0.5 * t, 1.5 * t3 - 2.5 * t2 + 1.0, -1.5 * t3 + 2.0 * t2 + 0.5 * t,
+            0.5 * t3 - 0.5 * t2)
+
+
+def _dkeys(t: Array) -> tuple[Array, Array, Array, Array]:
+    """Derivatives of :func:`_keys` with respect to ``t``, per pixel."""
+    t2 = t * t
+    return (-1.5 * t2 + 2.0 * t - 0.5, 4.5 * t2 - 5.0 * t, -4.5 * t2 + 4.0 * t + 0.5, 1.5 * t2 - t)
+
+
+def _cubic_setup(image: NDArray, line: ArrayLike, sample: ArrayLike) -> tuple[
+        Array, NDArray[np.intp], Array, Array, NDArray[np.bool_], int, tuple[int, ...] | None]:
+    """Flat image, flat index of each 4 x 4 stencil's first tap, fractional offsets, inside mask, width, 0-d shape."""
+    img = np.asarray(image, dtype=float)
+    if img.ndim != 2:
+        raise InvalidInputError(f"cubic resampling needs a 2-D image, got shape {img.shape}")
+    y = np.asarray(line, dtype=float) - 0.5
+    x = np.asarray(sample, dtype=float) - 0.5
+    y, x = np.broadcast_arrays(y, x)
+    # Scalars become (1,) and go back to 0-d in the caller (in-place masking needs arrays).
+    shape = y.shape if y.ndim == 0 else None
+    y, x = np.atleast_1d(y), np.atleast_1d(x)
+    h, w = img.shape
+    inside = (y >= 1.0) & (y <= h - 2) & (x >= 1.0) & (x <= w - 2)
+    yc = np.where(inside, y, 1.0)
+    xc = np.where(inside, x, 1.0)
+    # Truncation equals floor here (yc, xc >= 1).
+    i = np.minimum(yc.astype(np.intp), h - 3)
+    j = np.minimum(xc.astype(np.intp), w - 3)
+    base = (i - 1) * w + (j - 1)
+    return img.ravel(), base, yc - i, xc - j, inside, w, shape
+
+
+def bicubic(image: NDArray, line: ArrayLike, sample: ArrayLike) -> Array:
+    """Cubic-convolution values at CSM coordinates (the values of :func:`bicubic_with_gradient`, alone).
+
+    Parameters
+    ----------
+    image : ndarray (H, W)
+        Pixel values, grey levels.
+    line, sample : array_like
+        Continuous pixel coordinates (CSM), broadcast together.
+
+    Returns
+    -------
+    ndarray
+        Grey levels; NaN outside ``[1.5, H - 1.5] x [1.5, W - 1.5]`` and next to NaN pixels.
+    """
+    flat, base, fy, fx, inside, w, shape = _cubic_setup(image, line, sample)
+    wx = _keys(fx)
+    wy = _keys(fy)
+    # Separable, one stencil row at a time: four gathers of (n,) arrays per row keep every
+    # temporary the size of the output (a (n, 16) gather and its index array cost more than the sums).
+    out = None
+    for a in range(4):
+        b = base + a * w if a else base
+        row = flat[b] * wx[0]
+        row += flat[b + 1] * wx[1]
+        row += flat[b + 2] * wx[2]
+        row += flat[b + 3] * wx[3]
+        row *= wy[a]
+        out = row if out is None else np.add(out, row, out=out)
+    out[~inside] = np.nan
+    return out.reshape(inside.shape if shape is None else shape)
 
 
 def bicubic_with_gradient(image: NDArray, line: ArrayLike, sample: ArrayLike) -> tuple[Array, Array, Array]:
@@ -79,34 +140,37 @@ def bicubic_with_gradient(image: NDArray, line: ArrayLike, sample: ArrayLike) ->
     very surface being fitted. NaN outside ``[1.5, H - 1.5] x [1.5, W - 1.5]``
     (all 16 taps must exist) and next to NaN pixels.
 
+    Parameters
+    ----------
+    image : ndarray (H, W)
+        Pixel values, grey levels.
+    line, sample : array_like
+        Continuous pixel coordinates (CSM), broadcast together.
+
     Returns
     -------
     value, d_line, d_sample : ndarray
         Grey levels and grey levels per pixel.
     """
-    img = np.asarray(image, dtype=float)
-    y = np.asarray(line, dtype=float) - 0.5
-    x = np.asarray(sample, dtype=float) - 0.5
-    y, x = np.broadcast_arrays(y, x)
-    h, w = img.shape
-    inside = (y >= 1.0) & (y <= h - 2) & (x >= 1.0) & (x <= w - 2)
-    yc = np.where(inside, y, 1.0)
-    xc = np.where(inside, x, 1.0)
-    i = np.minimum(np.floor(yc).astype(np.intp), h - 3)
-    j = np.minimum(np.floor(xc).astype(np.intp), w - 3)
-    wy, dwy = _keys(yc - i)
-    wx, dwx = _keys(xc - j)
-    offs = (np.arange(4)[:, None] * w + np.arange(4)[None, :]).ravel()
-    k = ((i - 1) * w + (j - 1))[..., None] + offs
-    v = img.ravel()[k]
-    # Separable: interpolate the 4 tap rows along samples, then along lines
-    # (explicit 4-term sums of small arrays beat einsum and outer products here).
-    rows = v[..., 0::4] * wx[..., 0:1] + v[..., 1::4] * wx[..., 1:2] + v[..., 2::4] * wx[..., 2:3] \
-        + v[..., 3::4] * wx[..., 3:4]
-    drows = v[..., 0::4] * dwx[..., 0:1] + v[..., 1::4] * dwx[..., 1:2] + v[..., 2::4] * dwx[..., 2:3] \
-        + v[..., 3::4] * dwx[..., 3:4]
-    val = np.sum(rows * wy, axis=-1)
-    d_line = np.sum(rows * dwy, axis=-1)
-    d_sample = np.sum(drows * wy, axis=-1)
+    flat, base, fy, fx, inside, w, shape = _cubic_setup(image, line, sample)
+    wx, dwx = _keys(fx), _dkeys(fx)
+    wy, dwy = _keys(fy), _dkeys(fy)
+    val = d_line = d_sample = None
+    for a in range(4):
+        b = base + a * w if a else base
+        v0, v1, v2, v3 = flat[b], flat[b + 1], flat[b + 2], flat[b + 3]
+        row = v0 * wx[0] + v1 * wx[1] + v2 * wx[2] + v3 * wx[3]
+        drow = v0 * dwx[0] + v1 * dwx[1] + v2 * dwx[2] + v3 * dwx[3]
+        if val is None:
+            val, d_line, d_sample = row * wy[a], row * dwy[a], drow * wy[a]
+        else:
+            val += row * wy[a]
+            d_line += row * dwy[a]
+            d_sample += drow * wy[a]
     bad = ~inside
-    return (np.where(bad, np.nan, val), np.where(bad, np.nan, d_line), np.where(bad, np.nan, d_sample))
+    val[bad] = np.nan
+    d_line[bad] = np.nan
+    d_sample[bad] = np.nan
+    if shape is not None:
+        return val.reshape(shape), d_line.reshape(shape), d_sample.reshape(shape)
+    return val, d_line, d_sample
