@@ -19,7 +19,68 @@ from numpy.typing import NDArray
 
 from .rotation import left_jacobian, rotate, rotvec_to_matrix, skew
 
+try:  # optional: one fused pass per observation instead of ~20 numpy temporaries of (n, 3, 3)
+    import numba
+    from numba import prange
+except ImportError:  # pragma: no cover - exercised only without numba
+    numba = None
+    prange = range
+
 __all__ = ["FrameModel", "project_frame", "frame_jacobians"]
+
+
+def _frame_kernel_py(Rc, Jl, C, f, k1, k2, X, cam_idx, pt_idx, want_jac):
+    """Projection (and Jacobians) of observation ``i`` of image ``cam_idx[i]`` and point ``pt_idx[i]``.
+
+    Same equations as :func:`frame_jacobians`, written per observation for numba.
+    """
+    n = cam_idx.size
+    x = np.empty((n, 2))
+    Jc = np.empty((n if want_jac else 0, 2, 6))
+    Jp = np.empty((n if want_jac else 0, 2, 3))
+    for i in prange(n):
+        c = cam_idx[i]
+        j = pt_idx[i]
+        d0 = X[j, 0] - C[c, 0]
+        d1 = X[j, 1] - C[c, 1]
+        d2 = X[j, 2] - C[c, 2]
+        P0 = Rc[c, 0, 0] * d0 + Rc[c, 0, 1] * d1 + Rc[c, 0, 2] * d2
+        P1 = Rc[c, 1, 0] * d0 + Rc[c, 1, 1] * d1 + Rc[c, 1, 2] * d2
+        P2 = Rc[c, 2, 0] * d0 + Rc[c, 2, 1] * d1 + Rc[c, 2, 2] * d2
+        iz = 1.0 / P2
+        p0 = -P0 * iz
+        p1 = -P1 * iz
+        r2 = p0 * p0 + p1 * p1
+        d = 1.0 + r2 * (k1[c] + k2[c] * r2)
+        fc = f[c]
+        x[i, 0] = fc * d * p0
+        x[i, 1] = fc * d * p1
+        if want_jac:
+            g = 2.0 * k1[c] + 4.0 * k2[c] * r2
+            m00 = fc * (g * p0 * p0 + d)
+            m01 = fc * g * p0 * p1
+            m11 = fc * (g * p1 * p1 + d)
+            for k in range(2):
+                # row k of dx/dP = dx/dp @ [[-1/z, 0, X/z^2], [0, -1/z, Y/z^2]]
+                a = m00 if k == 0 else m01
+                b = m01 if k == 0 else m11
+                u0 = -a * iz
+                u1 = -b * iz
+                u2 = -(a * p0 + b * p1) * iz
+                # d X_c / d w: row u^T (-[P]x) = (P x u)^T, then times the left Jacobian
+                q0 = P1 * u2 - P2 * u1
+                q1 = P2 * u0 - P0 * u2
+                q2 = P0 * u1 - P1 * u0
+                for m in range(3):
+                    jp = u0 * Rc[c, 0, m] + u1 * Rc[c, 1, m] + u2 * Rc[c, 2, m]
+                    Jp[i, k, m] = jp
+                    Jc[i, k, 3 + m] = -jp
+                    Jc[i, k, m] = q0 * Jl[c, 0, m] + q1 * Jl[c, 1, m] + q2 * Jl[c, 2, m]
+    return x, Jc, Jp
+
+
+_frame_kernel = (numba.njit(cache=True)(_frame_kernel_py)
+                 if numba is not None else None)
 
 
 def _camera_coords(w, R0, C, X):
@@ -113,6 +174,8 @@ class FrameModel:
 
     def project(self, params: NDArray, cam_idx: NDArray, X: NDArray) -> NDArray:
         """Image coordinates (pixels) of the observations ``cam_idx`` of points ``X (n, 3)``."""
+        if _frame_kernel is not None:
+            return self.project_indexed(params, cam_idx, X, np.arange(X.shape[0]))
         R = (rotvec_to_matrix(params[:, 0:3]) @ self.R0)[cam_idx]
         P = np.einsum("nij,nj->ni", R, X - params[cam_idx, 3:6])
         p = -P[:, :2] / P[:, 2:3]
@@ -120,8 +183,31 @@ class FrameModel:
         k1, k2 = self.k1[cam_idx], self.k2[cam_idx]
         return (self.f[cam_idx] * (1.0 + r2 * (k1 + k2 * r2)))[:, None] * p
 
+    def _kernel_args(self, params, cam_idx, X, pt_idx):
+        w = np.ascontiguousarray(params[:, 0:3])
+        return (np.ascontiguousarray(rotvec_to_matrix(w) @ self.R0), np.ascontiguousarray(left_jacobian(w)),
+                np.ascontiguousarray(params[:, 3:6]), self.f, self.k1, self.k2, np.ascontiguousarray(X, float),
+                np.ascontiguousarray(cam_idx, np.int64), np.ascontiguousarray(pt_idx, np.int64))
+
+    def project_indexed(self, params: NDArray, cam_idx: NDArray, points: NDArray, pt_idx: NDArray) -> NDArray:
+        """Image coordinates (pixels) of observations of images ``cam_idx`` and points ``points[pt_idx]``.
+
+        Avoids gathering an ``(n_obs, 3)`` point array when the compiled kernel is available.
+        """
+        if _frame_kernel is None:
+            return self.project(params, cam_idx, points[pt_idx])
+        return _frame_kernel(*self._kernel_args(params, cam_idx, points, pt_idx), False)[0]
+
+    def linearize_indexed(self, params: NDArray, cam_idx: NDArray, points: NDArray, pt_idx: NDArray):
+        """``(x, J_cam, J_pt)`` of observations of images ``cam_idx`` and points ``points[pt_idx]``."""
+        if _frame_kernel is None:
+            return self.linearize(params, cam_idx, points[pt_idx])
+        return _frame_kernel(*self._kernel_args(params, cam_idx, points, pt_idx), True)
+
     def linearize(self, params: NDArray, cam_idx: NDArray, X: NDArray):
         """``(x, J_cam, J_pt)`` for the observations; see :func:`frame_jacobians`."""
+        if _frame_kernel is not None:
+            return self.linearize_indexed(params, cam_idx, X, np.arange(X.shape[0]))
         x, Jc, Jp, _ = frame_jacobians(params[:, 0:3], self.R0, params[:, 3:6], self.f, self.k1, self.k2, X,
                                        cam_idx=cam_idx)
         return x, Jc, Jp

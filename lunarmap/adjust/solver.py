@@ -32,9 +32,9 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from ..errors import AdjustmentDivergedError, DatumDefectError
-from .factor import factorize
+from .factor import Factorizer
 from .problem import BundleProblem
-from .schur import SchurStructure, inv_sym3
+from .schur import SchurStructure, inv_sym3, normal_blocks
 
 __all__ = ["SolverOptions", "AdjustmentState", "Linearization", "solve", "linearize", "evaluate_cost"]
 
@@ -46,7 +46,9 @@ class SolverOptions:
     ``ftol``: relative cost decrease that stops the iteration (Ceres' function tolerance);
     ``xtol``: relative step size that stops it; ``max_iterations``: accepted + rejected steps;
     ``initial_mu``: initial Marquardt damping (1 / Ceres' initial trust-region radius);
-    ``backend``: sparse factorisation (:func:`lunarmap.adjust.factor.factorize`).
+    ``backend``: sparse factorisation (:func:`lunarmap.adjust.factor.factorize`);
+    ``compiled``: use the numba kernels for the normal blocks and the Schur complement when numba is
+    installed (``False`` forces the numpy path, for testing).
     """
 
     ftol: float = 1e-6
@@ -54,6 +56,7 @@ class SolverOptions:
     max_iterations: int = 100
     initial_mu: float = 1e-4
     backend: str = "auto"
+    compiled: bool = True
     verbose: bool = False
     check_datum: bool = True
 
@@ -103,7 +106,11 @@ def _prior_terms(problem: BundleProblem, points: NDArray):
 
 def _image_residuals(problem: BundleProblem, state: AdjustmentState) -> NDArray:
     o = problem.obs
-    x = problem.model.project(state.cam_params, o.cam_idx, state.points[o.pt_idx])
+    m = problem.model
+    if hasattr(m, "project_indexed"):
+        x = m.project_indexed(state.cam_params, o.cam_idx, state.points, o.pt_idx)
+    else:
+        x = m.project(state.cam_params, o.cam_idx, state.points[o.pt_idx])
     return (x - o.xy) * (np.sqrt(state.obs_weight)[:, None] / o.sigma)
 
 
@@ -154,27 +161,31 @@ class _Terms:
         return np.concatenate(rs), sp.vstack(Js, format="csr")
 
 
+def _model_linearize(problem: BundleProblem, state: AdjustmentState):
+    o = problem.obs
+    m = problem.model
+    if hasattr(m, "linearize_indexed"):  # no (n_obs, 3) gather of the points
+        return m.linearize_indexed(state.cam_params, o.cam_idx, state.points, o.pt_idx)
+    return m.linearize(state.cam_params, o.cam_idx, state.points[o.pt_idx])
+
+
 def linearize(problem: BundleProblem, state: AdjustmentState, structure: SchurStructure, terms: _Terms,
               fixed_pt: NDArray) -> Linearization:
     """Residuals, Jacobians and normal-equation blocks at ``state`` (all observations at once)."""
     o = problem.obs
-    p = problem.model.n_params
-    x, Jc, Jp = problem.model.linearize(state.cam_params, o.cam_idx, state.points[o.pt_idx])
+    x, Jc, Jp = _model_linearize(problem, state)
     ws = np.sqrt(state.obs_weight)[:, None] / o.sigma        # (n, 2) sqrt of weights
     r = (x - o.xy) * ws
-    Ac = Jc * ws[:, :, None]
-    Ap = Jp * ws[:, :, None]
-    Ac *= problem.cam_param_free[o.cam_idx][:, None, :]     # fixed image parameters get no column
-    Ap[fixed_pt[o.pt_idx]] = 0.0
-    n = o.n
-    # per-observation products: A^T A over the 2 image coordinates
-    UU = Ac[:, 0, :, None] * Ac[:, 0, None, :] + Ac[:, 1, :, None] * Ac[:, 1, None, :]
-    VV = Ap[:, 0, :, None] * Ap[:, 0, None, :] + Ap[:, 1, :, None] * Ap[:, 1, None, :]
-    W = Ac[:, 0, :, None] * Ap[:, 0, None, :] + Ac[:, 1, :, None] * Ap[:, 1, None, :]
-    U = (structure.cam_agg @ UU.reshape(n, p * p)).reshape(-1, p, p)
-    V = (structure.pt_agg @ VV.reshape(n, 9)).reshape(-1, 3, 3)
-    gc = (structure.cam_agg @ np.einsum("nki,nk->ni", Ac, r)).ravel()
-    gp = structure.pt_agg @ np.einsum("nki,nk->ni", Ap, r)
+    # whiten in place when the model returned fresh arrays (it always does; copies otherwise)
+    Ac = np.multiply(Jc, ws[:, :, None], out=Jc if Jc.flags.writeable else None)
+    Ap = np.multiply(Jp, ws[:, :, None], out=Jp if Jp.flags.writeable else None)
+    if not problem.cam_param_free.all():
+        Ac *= problem.cam_param_free[o.cam_idx][:, None, :]     # fixed image parameters get no column
+    if fixed_pt.any():
+        Ap[fixed_pt[o.pt_idx]] = 0.0
+    U, V, W, gc, gp = normal_blocks(Ac, Ap, r, structure.cam_idx, structure.pt_idx, structure.n_cam,
+                                    structure.n_pt)
+    gc = gc.ravel()
     cost = float(np.sum(r * r))
     pt = _prior_terms(problem, state.points)
     if pt is not None:
@@ -198,36 +209,53 @@ def linearize(problem: BundleProblem, state: AdjustmentState, structure: SchurSt
 
 
 def reduced_system(lin: Linearization, structure: SchurStructure, terms: _Terms, mu: float, free_red: NDArray):
-    """Damped reduced camera system ``S`` (CSR, free unknowns only), its right-hand side and ``V*^-1``."""
+    """Damped reduced camera system.
+
+    Returns ``S`` (CSR, free unknowns only), its right-hand side, the damped point inverses
+    ``(V + mu D_p)^-1 (n_pt, 3, 3)`` and the damping diagonal ``D`` of the reduced unknowns
+    (all of them, free or not; the damping added is ``mu * D``).
+    """
     p = structure.p
-    V = lin.V.copy()
-    dV = np.clip(np.diagonal(lin.V, axis1=1, axis2=2), 1e-6, 1e32)
-    V[:, [0, 1, 2], [0, 1, 2]] += mu * dV
-    Vinv = inv_sym3(V)
-    F = np.matmul(lin.W, Vinv[structure.pt_of_obs])                                   # W_i V_j^-1, (n_obs, p, 3)
-    # Schur complement S = U - W V^-1 W^T (pair blocks), rhs = -g_c + W V^-1 g_p
-    blocks = -structure.pair_blocks(F, lin.W)
-    blocks[structure.diag_block] += lin.U
-    pt_of_obs = structure.pt_of_obs
-    Fg = np.einsum("nij,nj->ni", F, lin.gp[pt_of_obs])
-    rhs_c = -lin.gc + (structure.cam_agg @ Fg).ravel()
+    if structure.compiled:
+        blocks, Fg, Vinv = structure.schur(lin.U, lin.V, lin.W, lin.gp, mu)
+        rhs_c = -lin.gc + Fg.ravel()
+    else:
+        V = lin.V.copy()
+        dV = np.clip(np.diagonal(lin.V, axis1=1, axis2=2), 1e-6, 1e32)
+        V[:, [0, 1, 2], [0, 1, 2]] += mu * dV
+        Vinv = inv_sym3(V)
+        F = np.matmul(lin.W, Vinv[structure.pt_of_obs])                               # W_i V_j^-1, (n_obs, p, 3)
+        # Schur complement S = U - W V^-1 W^T (pair blocks), rhs = -g_c + W V^-1 g_p
+        blocks = -structure.pair_blocks(F, lin.W)
+        blocks[structure.diag_block] += lin.U
+        Fg = np.einsum("nij,nj->ni", F, lin.gp[structure.pt_of_obs])
+        rhs_c = -lin.gc + (structure.cam_agg @ Fg).ravel()
     n_cam_red = terms.n_cam_red
     diag = np.zeros(n_cam_red + terms.n_extra)
     diag[:n_cam_red] = np.diagonal(lin.U, axis1=1, axis2=2).ravel()
-    S = structure.assemble(blocks)
-    if terms.n_extra:
-        S = sp.bmat([[S, None], [None, sp.csr_matrix((terms.n_extra, terms.n_extra))]], format="csr")
     if lin.Nx is not None:
-        S = (S + lin.Nx).tocsr()
         diag += lin.Nx.diagonal()
+    D = np.clip(diag, 1e-6, 1e32)
     rhs = np.concatenate([rhs_c, np.zeros(terms.n_extra)]) - lin.gx
-    S = S + sp.diags(mu * np.clip(diag, 1e-6, 1e32))
-    S = S.tocsr()
+    if not terms.n_extra and lin.Nx is None:
+        # camera damping straight into the diagonal blocks: no sparse sum
+        if mu != 0.0:
+            db = blocks[structure.diag_block]
+            db[:, np.arange(p), np.arange(p)] += mu * D.reshape(-1, p)
+            blocks[structure.diag_block] = db
+        S = structure.assemble(blocks)
+    else:
+        S = structure.assemble(blocks)
+        if terms.n_extra:
+            S = sp.bmat([[S, None], [None, sp.csr_matrix((terms.n_extra, terms.n_extra))]], format="csr")
+        if lin.Nx is not None:
+            S = (S + lin.Nx).tocsr()
+        S = (S + sp.diags(mu * D)).tocsr()
     if not free_red.all():
         idx = np.nonzero(free_red)[0]
         S = S[idx][:, idx]
         rhs = rhs[idx]
-    return S, rhs, Vinv, F
+    return S, rhs, Vinv, D
 
 
 def back_substitute(lin: Linearization, structure: SchurStructure, Vinv: NDArray, dred: NDArray, terms: _Terms,
@@ -241,27 +269,18 @@ def back_substitute(lin: Linearization, structure: SchurStructure, Vinv: NDArray
     return np.einsum("nij,nj->ni", Vinv, t)
 
 
-def _model_decrease(lin, structure, terms, problem, dred, dp):
-    """Predicted cost decrease of the linear model, ``L(0) - L(delta)``."""
-    o = problem.obs
-    p = structure.p
-    dc = dred[:terms.n_cam_red].reshape(-1, p)
-    Jd = np.einsum("nki,ni->nk", lin.Ac, dc[o.cam_idx]) + np.einsum("nki,ni->nk", lin.Ap, dp[o.pt_idx])
-    lin_cost = np.sum((lin.r + Jd) ** 2)
-    base = np.sum(lin.r ** 2)
-    pr = problem.priors
-    if pr is not None and (~pr.fixed).any():
-        m = ~pr.fixed
-        idx = pr.idx[m]
-        wsq = 1.0 / pr.sigma[m]
-        rr = lin.prior_r
-        lin_cost += np.sum((rr + wsq * dp[idx]) ** 2)
-        base += np.sum(rr ** 2)
-    if lin.Jx is not None:
-        jx = lin.Jx @ dred
-        lin_cost += np.sum((lin.rx + jx) ** 2)
-        base += np.sum(lin.rx ** 2)
-    return 0.5 * (base - lin_cost)
+def _model_decrease(lin: Linearization, mu: float, D: NDArray, dred: NDArray, dp: NDArray) -> float:
+    """Predicted cost decrease of the linear model, ``L(0) - L(delta)``.
+
+    For the exact solution of ``(N + mu D) delta = -g`` this is ``(mu delta^T D delta - g^T delta) / 2``:
+    no pass over the observations.
+    """
+    g_red = lin.gx.copy()
+    g_red[:lin.gc.size] += lin.gc
+    Dp = np.clip(np.diagonal(lin.V, axis1=1, axis2=2), 1e-6, 1e32)
+    quad = float(D @ (dred * dred)) + float(np.sum(Dp * dp * dp))
+    lin_term = float(g_red @ dred) + float(np.sum(lin.gp * dp))
+    return 0.5 * (mu * quad - lin_term)
 
 
 def solve(problem: BundleProblem, options: SolverOptions | None = None,
@@ -293,8 +312,9 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
     o = problem.obs
     p = problem.model.n_params
     fixed_pt = problem.point_fixed()
-    structure = SchurStructure(o.cam_idx, o.pt_idx, problem.n_images, problem.n_points, p, active_pt=~fixed_pt)
-    structure.pt_of_obs = o.pt_idx
+    structure = SchurStructure(o.cam_idx, o.pt_idx, problem.n_images, problem.n_points, p, active_pt=~fixed_pt,
+                               compiled=opt.compiled)
+    factorize = Factorizer(opt.backend)
     terms = _Terms(problem)
     extra0 = np.concatenate([t.initial_extra() for t in problem.terms]) if problem.terms else np.zeros(0)
     free_red = np.concatenate([problem.cam_param_free.ravel()] +
@@ -320,9 +340,9 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
     converged = False
     while n_iter < opt.max_iterations:
         n_iter += 1
-        S, rhs, Vinv, _ = reduced_system(lin, structure, terms, mu, free_red)
+        S, rhs, Vinv, D = reduced_system(lin, structure, terms, mu, free_red)
         try:
-            solve_S = factorize(S, opt.backend)
+            solve_S = factorize(S)
         except DatumDefectError:
             # rounding made the damped system indefinite (very weak points): damp more, as for a rejected step
             if mu > 1e32:
@@ -337,7 +357,7 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
         new = AdjustmentState(state.cam_params + dc, state.points + dp, state.extra + dred[terms.n_cam_red:],
                               state.obs_weight, state.iteration + 1)
         new_cost = evaluate_cost(problem, new)
-        pred = _model_decrease(lin, structure, terms, problem, dred, dp)
+        pred = _model_decrease(lin, mu, D, dred, dp)
         actual = state.cost - new_cost
         step_norm = np.sqrt(np.sum(dred ** 2) + np.sum(dp ** 2))
         x_norm = np.sqrt(np.sum(state.cam_params ** 2) + np.sum(state.points ** 2) + np.sum(state.extra ** 2))
