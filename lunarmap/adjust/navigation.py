@@ -7,9 +7,17 @@ DLR paper (``seeds/004``), Eqs. 2-3: every exterior-orientation parameter ``n`` 
     value_jn = observed_jn + c_on + s_j d_on + e_jn,      e_jn ~ N(0, sigma_jn^2)
 
 with a per-orbit offset ``c_on`` and drift ``d_on`` (``s_j``: time or along-orbit distance
-of image ``j``).  Offsets and drifts are, per term, ``"fixed"`` (held at their initial value),
-``"free"`` unknowns, or ``"observed"`` (unknowns with a zero-mean pseudo-observation of sigma
-``offset_sigma`` / ``drift_sigma``).
+of image ``j``).  Offsets and drifts are, per parameter ``n`` (or for all at once), ``"fixed"``
+(held at their initial value), ``"free"`` unknowns, or ``"observed"`` (unknowns with a zero-mean
+pseudo-observation of sigma ``offset_sigma`` / ``drift_sigma``: random effects drawn per orbit).
+
+Freeing attitude AND position offsets of a narrow-angle frame camera leaves the split between
+them to perspective effects only: for a Clementine-like block the posterior sigma of the
+positions grows to kilometres and of the attitudes to tenths of a degree (vs 10 m and 0.001
+degree navigation noise), where the linearised covariance no longer describes the estimator
+(second-order terms of a 0.2 degree rotation at 400 km reach half a pixel).  The DLR paper frees
+only the offsets it detects (Section 4.3); ``"observed"`` with realistic sigmas is the other
+well-posed choice.
 
 The parameters are those of the image model (for :class:`FrameModel`: ``[w (radians), C]``),
 so the attitude observation is the correction relative to the reference attitude ``R0``.
@@ -42,7 +50,8 @@ class NavigationObservations:
         Orbit (or camera group) of every image.
     s : (n_img,) float
         Along-orbit coordinate of every image (seconds or metres) for the drift.
-    offset, drift : {"fixed", "free", "observed"}
+    offset, drift : {"fixed", "free", "observed"} or sequence of p of them
+        One mode for all parameters, or one per parameter.
     offset_sigma, drift_sigma : (p,) float
         Sigma of the pseudo-observations when ``"observed"`` (units per parameter; drift per unit of ``s``).
     name : str
@@ -54,8 +63,8 @@ class NavigationObservations:
         obs = np.asarray(observed, dtype=float)
         n, p = obs.shape
         sig = np.array(np.broadcast_to(np.asarray(sigma, dtype=float), (n, p)))
-        if offset not in _MODES or drift not in _MODES:
-            raise AdjustmentInputError(f"offset/drift must be one of {_MODES}, got {offset!r}/{drift!r}")
+        offset_modes = self._modes("offset", offset, p)
+        drift_modes = self._modes("drift", drift, p)
         if np.any(~(sig > 0)):
             raise AdjustmentInputError("navigation sigma must be > 0 (use inf for 'not observed')")
         used = np.isfinite(sig)
@@ -74,16 +83,35 @@ class NavigationObservations:
         self.orbit = orbit
         self.n_orbits = int(orbit.max()) + 1
         self.p = p
-        self.offset, self.drift = offset, drift
-        self.offset_sigma = None if offset_sigma is None else np.broadcast_to(np.asarray(offset_sigma, float), (p,))
-        self.drift_sigma = None if drift_sigma is None else np.broadcast_to(np.asarray(drift_sigma, float), (p,))
-        if offset == "observed" and self.offset_sigma is None or drift == "observed" and self.drift_sigma is None:
-            raise AdjustmentInputError("'observed' offset/drift needs offset_sigma/drift_sigma")
+        self.offset_modes, self.drift_modes = offset_modes, drift_modes
+        self.offset = offset if isinstance(offset, str) else tuple(offset_modes)
+        self.drift = drift if isinstance(drift, str) else tuple(drift_modes)
+        self.offset_sigma = self._pseudo_sigma("offset", offset_sigma, offset_modes, p)
+        self.drift_sigma = self._pseudo_sigma("drift", drift_sigma, drift_modes, p)
         self.name = name
         self.n_extra = 2 * self.n_orbits * p   # [offsets (n_orb, p) | drifts (n_orb, p)]
-        self.n_obs_scalar = int(used.sum()) + (self.n_orbits * p if offset == "observed" else 0) + \
-            (self.n_orbits * p if drift == "observed" else 0)
+        self.n_obs_scalar = int(used.sum()) + self.n_orbits * int(np.sum(offset_modes == "observed")) + \
+            self.n_orbits * int(np.sum(drift_modes == "observed"))
         self._build()
+
+    @staticmethod
+    def _modes(what: str, mode, p: int) -> NDArray:
+        modes = np.array([mode] * p if isinstance(mode, str) else list(mode), dtype=object)
+        if modes.shape != (p,) or any(m not in _MODES for m in modes):
+            raise AdjustmentInputError(f"{what} must be one of {_MODES} or a sequence of {p} of them, got {mode!r}")
+        return modes
+
+    @staticmethod
+    def _pseudo_sigma(what: str, sigma, modes: NDArray, p: int):
+        observed = modes == "observed"
+        if not observed.any():
+            return None if sigma is None else np.broadcast_to(np.asarray(sigma, float), (p,))
+        if sigma is None:
+            raise AdjustmentInputError(f"'observed' {what} needs {what}_sigma")
+        sig = np.array(np.broadcast_to(np.asarray(sigma, float), (p,)))
+        if not np.all(np.isfinite(sig[observed]) & (sig[observed] > 0)):
+            raise AdjustmentInputError(f"{what}_sigma must be finite and > 0 for the 'observed' parameters")
+        return sig
 
     def _build(self):
         n, p = self.obs.shape
@@ -99,18 +127,15 @@ class NavigationObservations:
         c_ = [rows, off_col, dr_col]
         v_ = [w, -w, -w * self.s[img]]
         nrow = m
-        if self.offset == "observed":
-            j = np.arange(self.n_orbits * p)
-            r_.append(nrow + j)
-            c_.append(ncr + j)
-            v_.append(1.0 / np.tile(self.offset_sigma, self.n_orbits))
-            nrow += j.size
-        if self.drift == "observed":
-            j = np.arange(self.n_orbits * p)
-            r_.append(nrow + j)
-            c_.append(ncr + self.n_orbits * p + j)
-            v_.append(1.0 / np.tile(self.drift_sigma, self.n_orbits))
-            nrow += j.size
+        for base, modes, sig in ((ncr, self.offset_modes, self.offset_sigma),
+                                 (ncr + self.n_orbits * p, self.drift_modes, self.drift_sigma)):
+            # zero-mean pseudo-observations of the observed offsets/drifts, orbit-major order
+            j = np.nonzero(np.tile(modes == "observed", self.n_orbits))[0]
+            if j.size:
+                r_.append(nrow + np.arange(j.size))
+                c_.append(base + j)
+                v_.append(1.0 / np.tile(sig, self.n_orbits)[j])
+                nrow += j.size
         self._J = sp.csr_matrix((np.concatenate(v_), (np.concatenate(r_), np.concatenate(c_))),
                                 shape=(nrow, ncr + self.n_extra))
         self._rows = rows
@@ -121,8 +146,8 @@ class NavigationObservations:
     def extra_free(self) -> NDArray[np.bool_]:
         f = np.zeros(self.n_extra, dtype=bool)
         h = self.n_orbits * self.p
-        f[:h] = self.offset != "fixed"
-        f[h:] = self.drift != "fixed"
+        f[:h] = np.tile(self.offset_modes != "fixed", self.n_orbits)
+        f[h:] = np.tile(self.drift_modes != "fixed", self.n_orbits)
         return f
 
     def observed_images(self) -> NDArray[np.bool_]:

@@ -10,6 +10,14 @@ time ``s`` in seconds) and white noise of ``nav_sigma``, for positions (metres) 
 (radians, as the rotation vector of the attitude correction relative to the navigation
 attitude, which is the reference attitude ``R0`` of the image model).  Control points are
 truth + noise of ``control_sigma`` metres.
+
+The offsets and drifts are drawn per orbit from ``N(0, offset_*)`` and ``N(0, drift_*)``; the
+matching stochastic model is ``"observed"`` offsets/drifts with those sigmas (the default).
+``"free"`` for both the attitude and the position parameters is ill-posed in practice (see
+:mod:`lunarmap.adjust.navigation`): the estimator then leaves the linear regime and its errors
+no longer follow the linearised covariance.  Per-parameter modes (a sequence of 6) allow the DLR
+paper's practice of freeing only some offsets, e.g. ``("fixed",) * 3 + ("free",) * 3`` with
+``offset_att = drift_att = 0``.
 """
 
 from __future__ import annotations
@@ -57,10 +65,12 @@ def simulate_frame_block(orbits: int = 4, per_orbit: int = 12, points: int = 150
                          offset_pos: float = 100.0, offset_att: float = np.radians(0.01),
                          drift_pos: float = 0.5, drift_att: float = np.radians(0.0002),
                          control_sigma: float = 5.0, relief: float = 2000.0, speed: float = 1600.0,
-                         offset_mode: str = "free", drift_mode: str = "free", seed: int = 0) -> SimulatedBlock:
+                         offset_mode="observed", drift_mode="observed", seed: int = 0) -> SimulatedBlock:
     """Simulate the block; returns the adjustment problem (initial values from navigation) and truth.
 
     Lengths in metres, angles in radians, ``drift_*`` per second, ``speed`` ground speed m/s.
+    ``offset_mode``, ``drift_mode``: one of "fixed", "free", "observed" or a sequence of 6
+    (``[w_x, w_y, w_z, C_x, C_y, C_z]``); "observed" uses ``offset_*`` / ``drift_*`` as sigmas.
     The initial points are multi-ray intersections with the navigation orientation.
     """
     rng = np.random.default_rng(seed)
@@ -129,9 +139,11 @@ def simulate_frame_block(orbits: int = 4, per_orbit: int = 12, points: int = 150
         priors = PointPriors(control, X[control] + rng.normal(0, control_sigma, (control.size, 3)),
                              np.full((control.size, 3), control_sigma))
 
-    nav = NavigationObservations(np.zeros((n, 6)) * np.array([1, 1, 1, 0, 0, 0]) + np.column_stack(
-        [np.zeros((n, 3)), C_nav]), np.broadcast_to(nav_sig, (n, 6)), orbit, t,
-        offset=offset_mode, drift=drift_mode)
+    off_sig = np.array([offset_att] * 3 + [offset_pos] * 3)
+    dr_sig = np.array([drift_att] * 3 + [drift_pos] * 3)
+    nav = NavigationObservations(np.column_stack([np.zeros((n, 3)), C_nav]), np.broadcast_to(nav_sig, (n, 6)),
+                                 orbit, t, offset=offset_mode, drift=drift_mode,
+                                 offset_sigma=off_sig, drift_sigma=dr_sig)
     params0 = np.column_stack([np.zeros((n, 3)), C_nav])
     X0 = intersect_points(model, params0, cam_idx, pt_idx, xy, sigma_px, n_pt=X.shape[0]).xyz
     problem = BundleProblem(model, params0, X0, ImageObservations(cam_idx, pt_idx, xy, sigma_px), priors,
