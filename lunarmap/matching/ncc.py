@@ -15,7 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
 from ..errors import InvalidInputError
@@ -61,8 +60,13 @@ def _ncc_surface(tmpl: Array, search: Array) -> Array:
     s0 = np.where(valid, search, 0.0)
     tm = tmpl - tmpl.mean(axis=(1, 2), keepdims=True)
     tn = np.sqrt(np.sum(tm * tm, axis=(1, 2)))
-    win = sliding_window_view(s0, (t, t), axis=(1, 2))  # (b, k, k, t, t)
-    cross = np.einsum("bklij,bij->bkl", win, tm, optimize=True)
+    k = s0.shape[1] - t + 1
+    # One (b, t, t) product-sum per shift: einsum over a (b, k, k, t, t) sliding-window view copies
+    # the view (k^2 t^2 values per template: 0.5 GB for 512 templates at k = 23) and ran 2-3x slower.
+    cross = np.empty((s0.shape[0], k, k))
+    for p in range(k):
+        for q in range(k):
+            cross[:, p, q] = np.einsum("bij,bij->b", s0[:, p:p + t, q:q + t], tm)
 
     def box(a: Array) -> Array:  # window sums from an integral image: O(1) per shift
         c = np.pad(a, ((0, 0), (1, 0), (1, 0))).cumsum(1).cumsum(2)
