@@ -10,7 +10,9 @@ timed in the same run, next to the absolute rate:
 2. ``dask``: :func:`lunarmap.matching.find_tiepoints` on a 4-image set
    (6 pairs), serial (``scheduler="sync"``) against a 2-worker
    ``distributed.LocalCluster`` (1 thread per worker), with worker processes
-   and with in-process workers (threads; numpy releases the GIL).
+   (started with :data:`lunarmap.matching.WORKER_ENVIRON`) and with in-process
+   workers (threads; numpy releases the GIL). Cluster start-up and a warm-up
+   run are not timed.
 
     python bench/bench_matching.py [--size 512] [--repeat 3]
 
@@ -29,9 +31,11 @@ import json  # noqa: E402
 import platform  # noqa: E402
 import time  # noqa: E402
 
+import dask  # noqa: E402
 import numpy as np  # noqa: E402
 
 from lunarmap.matching import (  # noqa: E402
+    WORKER_ENVIRON,
     TiePointParams,
     build_pyramid,
     find_tiepoints,
@@ -97,7 +101,10 @@ def bench_dask(size: int, repeat: int) -> dict:
     t_serial = best_of(lambda: out.__setitem__("s", find_tiepoints(imgs, cams, params=params, scheduler="sync")),
                        repeat)
     for label, procs in (("processes", True), ("threads", False)):
-        with LocalCluster(n_workers=2, threads_per_worker=1, processes=procs, dashboard_address=None) as cluster, \
+        # Worker processes without distributed's MALLOC_TRIM_THRESHOLD_ (see lunarmap.matching.parallel):
+        # with it, the matching tasks ran 2-7x slower in the workers than in the client.
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": WORKER_ENVIRON}), \
+                LocalCluster(n_workers=2, threads_per_worker=1, processes=procs, dashboard_address=":0") as cluster, \
                 Client(cluster) as client:
             find_tiepoints(imgs, cams, params=params, scheduler=client)  # warm-up: imports on the workers
             out[f"t_{label}"] = best_of(lambda: out.__setitem__("c", find_tiepoints(imgs, cams, params=params,

@@ -7,11 +7,11 @@ from .interest import InterestPoints, foerstner, invalid_mask
 from .lsm import LsmResult, lsm_match
 from .ncc import NccResult, ncc_match, window_offsets
 from .pairs import STATUS, MatchParams, PairMatches, as_array, match_points
-from .parallel import tiepoint_graph
+from .parallel import WORKER_ENVIRON, tiepoint_graph
 from .predict import Prediction, SensorModel, predict_conjugates
 from .pyramid import build_pyramid, downsample
 from .ransac import RansacParams, ransac_local_affine
-from .resample import bicubic_with_gradient, bilinear
+from .resample import bicubic, bicubic_with_gradient, bilinear
 from .tiepoints import (
     DetectParams,
     TiePointParams,
@@ -30,9 +30,9 @@ __all__ = [
     "InterestPoints", "foerstner", "invalid_mask",
     "LsmResult", "lsm_match", "NccResult", "ncc_match", "window_offsets",
     "STATUS", "MatchParams", "PairMatches", "as_array", "match_points",
-    "tiepoint_graph", "Prediction", "SensorModel", "predict_conjugates",
+    "tiepoint_graph", "WORKER_ENVIRON", "Prediction", "SensorModel", "predict_conjugates",
     "build_pyramid", "downsample", "RansacParams", "ransac_local_affine",
-    "bicubic_with_gradient", "bilinear",
+    "bicubic", "bicubic_with_gradient", "bilinear",
     "DetectParams", "TiePointParams", "assemble_tiepoints", "detect_tile", "find_tiepoints", "match_pair",
     "read_tiepoints", "tile_windows", "write_tiepoints", "Observations", "build_tracks",
 ]

@@ -4,7 +4,19 @@ Every task is a plain function of picklable inputs (arrays, sensor models,
 parameter dataclasses), so the graph runs on the threaded scheduler, on
 processes or on a ``distributed`` cluster alike. Images that are lazy dask
 arrays (e.g. from :func:`lunarmap.simulate.render_image`) are rendered by
-their own tasks upstream.
+their own tasks upstream, and each detection tile reads only its chunks;
+an in-memory image enters the graph once, as one node that its tiles and
+pairs share (slicing it while building the graph would put a copy of every
+tile into the graph, shipped to the scheduler on each compute).
+
+Worker processes: start them without distributed's default
+``MALLOC_TRIM_THRESHOLD_=65536`` (:data:`WORKER_ENVIRON`, e.g.
+``dask.config.set({"distributed.nanny.pre-spawn-environ": WORKER_ENVIRON})``
+before creating the cluster). That setting turns off glibc's adaptive mmap
+threshold, so every numpy temporary above 128 kB is mmap-ed and page-faulted
+afresh: measured on the 4-image bench set, the pair-matching tasks ran 2-7
+times slower in worker processes than in the client, and a 2-worker cluster
+took 11.3 s against 2.9 s serial.
 """
 
 from __future__ import annotations
@@ -12,14 +24,24 @@ from __future__ import annotations
 from typing import Any, Mapping, Sequence
 
 import dask
+import numpy as np
 import xarray as xr
+from dask.base import is_dask_collection, tokenize
 from dask.delayed import Delayed
+from numpy.typing import NDArray
 
 from ..errors import InvalidInputError
+from ..rpc.parallel import WORKER_ENVIRON as _RPC_WORKER_ENVIRON
+from .interest import InterestPoints
 from .pairs import as_array
-from .tiepoints import TiePointParams, assemble_tiepoints, detect_tile, match_pair, merge_points, tile_windows
+from .tiepoints import (DetectParams, TiePointParams, assemble_tiepoints, detect_tile, match_pair, merge_points,
+                         tile_windows)
 
-__all__ = ["tiepoint_graph"]
+__all__ = ["tiepoint_graph", "WORKER_ENVIRON"]
+
+#: Environment for dask worker processes running the chain (one BLAS/OpenMP thread each, no
+#: ``MALLOC_TRIM_THRESHOLD_``); the same as :data:`lunarmap.rpc.parallel.WORKER_ENVIRON`.
+WORKER_ENVIRON = dict(_RPC_WORKER_ENVIRON)
 
 
 def _shape(image: Any) -> tuple[int, int]:
@@ -27,6 +49,12 @@ def _shape(image: Any) -> tuple[int, int]:
     if len(shape) != 2:
         raise InvalidInputError(f"images must be 2-D (line, sample), got shape {shape}")
     return shape  # type: ignore[return-value]
+
+
+def _detect_in(image: NDArray, core: tuple[int, int, int, int], padded: tuple[int, int, int, int],
+               params: DetectParams, saturation: float | None, label: str) -> InterestPoints:
+    """:func:`detect_tile` on the padded window of a whole image (the window is cut on the worker)."""
+    return detect_tile(image[padded[0]:padded[1], padded[2]:padded[3]], core, padded, params, saturation, label)
 
 
 def tiepoint_graph(images: Mapping[str, Any], sensors: Mapping[str, Any],
@@ -46,20 +74,27 @@ def tiepoint_graph(images: Mapping[str, Any], sensors: Mapping[str, Any],
         if a not in images or b not in images or a == b:
             raise InvalidInputError(f"pair ({a!r}, {b!r}) does not name two different images")
     sat = params.match.saturation
+    raw: dict[str, Any] = {}
     arrays = {}
     for n in names:
         img = images[n]
         data = img.data if isinstance(img, xr.DataArray) else img
         _shape(data)
-        arrays[n] = dask.delayed(as_array, pure=True)(data, n, sat)
+        # In-memory pixels become one graph node (see the module notes); dask arrays stay lazy.
+        raw[n] = data if is_dask_collection(data) else dask.delayed(np.asarray(data), name=f"pixels-{tokenize(data)}")
+        arrays[n] = dask.delayed(as_array, pure=True)(raw[n], n, sat)
     halo = params.detect.border + params.detect.window + params.detect.nms
     points: dict[str, Any] = {}
     for n in sorted({a for a, _ in pairs}):
-        data = images[n].data if isinstance(images[n], xr.DataArray) else images[n]
+        data = raw[n]
+        lazy = not isinstance(data, Delayed)
         tiles = []
-        for core, pad in tile_windows(_shape(data), params.detect.tile, halo):
-            window = data[pad[0]:pad[1], pad[2]:pad[3]]
-            tiles.append(dask.delayed(detect_tile, pure=True)(window, core, pad, params.detect, sat, n))
+        for core, pad in tile_windows(_shape(images[n]), params.detect.tile, halo):
+            if lazy:
+                tiles.append(dask.delayed(detect_tile, pure=True)(data[pad[0]:pad[1], pad[2]:pad[3]], core, pad,
+                                                                  params.detect, sat, n))
+            else:
+                tiles.append(dask.delayed(_detect_in, pure=True)(data, core, pad, params.detect, sat, n))
         points[n] = dask.delayed(merge_points, pure=True)(tiles)
     index = {n: k for k, n in enumerate(names)}
     sens = {n: dask.delayed(sensors[n], traverse=False) for n in names}

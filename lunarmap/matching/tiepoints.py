@@ -190,7 +190,9 @@ def find_tiepoints(images: Mapping[str, xr.DataArray | NDArray], sensors: Mappin
         Prediction height (metres) or coarse DTM.
     params : TiePointParams
     scheduler : str or distributed.Client
-        ``"sync"`` (serial), ``"threads"``, ``"processes"`` or a ``distributed.Client``.
+        ``"sync"`` (serial), ``"threads"``, ``"processes"`` or a ``distributed.Client``
+        (start its worker processes with :data:`lunarmap.matching.parallel.WORKER_ENVIRON`,
+        see :mod:`lunarmap.matching.parallel`).
 
     Returns
     -------
