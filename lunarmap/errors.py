@@ -43,6 +43,7 @@ __all__ = [
     "UnobservedParameterError",
     "DatumDefectError",
     "AdjustmentDivergedError",
+    "NetworkFormatError",
 ]
 
 
@@ -187,3 +188,7 @@ class DatumDefectError(AdjustmentError):
 
 class AdjustmentDivergedError(AdjustmentError, ConvergenceError):
     """The Levenberg-Marquardt iteration could not reduce the cost any further from a non-finite state."""
+
+
+class NetworkFormatError(AdjustmentInputError):
+    """A control-network file or dataset is malformed: missing variable, bad point type, index out of range."""

@@ -63,18 +63,90 @@ class ImageObservations:
 
 @dataclass
 class PointPriors:
-    """Control points: observed object coordinates (length unit of the block) with sigma.
+    """Control points: observed object coordinates (length unit of the block) with sigma or covariance.
 
-    ``sigma`` ``(k, 3)``; a zero sigma holds that point fixed (all three coordinates).
+    Attributes
+    ----------
+    idx : (k,) int
+        Points that are controlled.
+    xyz : (k, 3) float
+        Observed coordinates (body-fixed, length unit of the block, e.g. metres).
+    sigma : (k, 3) or (k,) float, optional
+        Per-axis standard deviations, same unit; a zero sigma holds that point fixed (all three
+        coordinates).  Derived from ``cov`` when that is given.
+    cov : (k, 3, 3) float, optional
+        Full covariance (unit squared), e.g. propagated from latitude/longitude/height sigmas
+        (:func:`lunarmap.adjust.control_points.lonlat_priors`); an all-zero matrix holds the point fixed.
     """
 
     idx: NDArray[np.int64]
     xyz: NDArray[np.float64]
-    sigma: NDArray[np.float64]
+    sigma: NDArray[np.float64] | None = None
+    cov: NDArray[np.float64] | None = None
 
     @property
     def fixed(self) -> NDArray[np.bool_]:
         return np.all(self.sigma == 0.0, axis=1)
+
+    @property
+    def correlated(self) -> bool:
+        """True if some covariance has non-zero off-diagonal terms (not expressible by ``sigma``)."""
+        if self.cov is None:
+            return False
+        off = self.cov - np.einsum("kii->ki", self.cov)[:, :, None] * np.eye(3)
+        return bool(np.any(off != 0.0))
+
+    def sqrt_weight(self) -> NDArray[np.float64]:
+        """``W (k, 3, 3)`` with ``W^T W = C^-1`` (inverse length unit); zero for fixed points.
+
+        Whitened control residuals are ``W (X - xyz)``; ``W = L^-1`` with ``C = L L^T`` (Cholesky).
+        """
+        k = self.xyz.shape[0]
+        W = np.zeros((k, 3, 3))
+        free = ~self.fixed
+        if self.cov is None:
+            W[free] = np.eye(3) / self.sigma[free][:, :, None]
+        elif free.any():
+            L = np.linalg.cholesky(self.cov[free])
+            W[free] = np.linalg.inv(L)
+        return W
+
+    def _validate(self, n_pt: int) -> None:
+        self.idx = np.asarray(self.idx, dtype=np.int64)
+        self.xyz = np.asarray(self.xyz, dtype=float).reshape(-1, 3)
+        k = self.xyz.shape[0]
+        if self.idx.shape != (k,):
+            raise AdjustmentInputError(f"control points: idx has shape {self.idx.shape}, xyz has {k} rows")
+        _finite("control point coordinates", self.xyz)
+        if self.cov is not None:
+            cov = np.asarray(self.cov, dtype=float)
+            if cov.shape != (k, 3, 3):
+                raise AdjustmentInputError(f"control point covariance must be ({k}, 3, 3), got {cov.shape}")
+            _finite("control point covariance", cov.reshape(k, 9))
+            if not np.allclose(cov, np.swapaxes(cov, 1, 2), rtol=1e-12, atol=0.0):
+                raise AdjustmentInputError("control point covariance matrices must be symmetric")
+            zero = np.all(cov.reshape(k, 9) == 0.0, axis=1)
+            ev = np.linalg.eigvalsh(cov[~zero]) if (~zero).any() else np.ones((0, 3))
+            if np.any(ev <= 0.0):
+                bad = int(np.nonzero(~zero)[0][np.argmax(np.any(ev <= 0.0, axis=1))])
+                raise AdjustmentInputError(f"control point covariance of point {int(self.idx[bad])} is not positive "
+                                           "definite (use an all-zero matrix to hold a point fixed)")
+            self.cov = cov
+            self.sigma = np.sqrt(np.einsum("kii->ki", cov))
+        elif self.sigma is None:
+            raise AdjustmentInputError("control points need sigma or cov")
+        sig = np.asarray(self.sigma, dtype=float)
+        self.sigma = np.array(np.broadcast_to(sig.reshape(-1, 1) if sig.ndim == 1 else sig, self.xyz.shape))
+        _finite("control point sigma", self.sigma)
+        if self.idx.size and (self.idx.min() < 0 or self.idx.max() >= n_pt):
+            raise AdjustmentInputError(f"control point index out of range [0, {n_pt})")
+        if np.any(self.sigma < 0):
+            raise AdjustmentInputError("control point sigma must be >= 0 (0 = fixed)")
+        if np.any((self.sigma == 0).any(axis=1) & ~self.fixed):
+            raise AdjustmentInputError("control point sigma: zero for some but not all axes of a point "
+                                       "(0 holds the whole point fixed)")
+        if np.unique(self.idx).size != self.idx.size:
+            raise AdjustmentInputError("control point indices repeat")
 
 
 class ReducedTerm(Protocol):
@@ -93,6 +165,12 @@ class ReducedTerm(Protocol):
         ...
 
     def extra_free(self) -> NDArray[np.bool_]: ...
+
+
+def _solver_takes_correlated_priors() -> bool:
+    from . import solver
+
+    return bool(getattr(solver, "SUPPORTS_PRIOR_COVARIANCE", False))
 
 
 @dataclass
@@ -144,19 +222,13 @@ class BundleProblem:
         if np.any(o.sigma <= 0):
             raise AdjustmentInputError("image observation sigma must be > 0 pixels")
         if self.priors is not None:
-            pr = self.priors
-            pr.idx = np.asarray(pr.idx, dtype=np.int64)
-            pr.xyz = np.asarray(pr.xyz, dtype=float).reshape(-1, 3)
-            pr.sigma = np.array(np.broadcast_to(np.asarray(pr.sigma, dtype=float).reshape(-1, 1)
-                                                if np.ndim(pr.sigma) == 1 else pr.sigma, pr.xyz.shape))
-            _finite("control point coordinates", pr.xyz)
-            _finite("control point sigma", pr.sigma)
-            if pr.idx.size and (pr.idx.min() < 0 or pr.idx.max() >= n_pt):
-                raise AdjustmentInputError(f"control point index out of range [0, {n_pt})")
-            if np.any(pr.sigma < 0):
-                raise AdjustmentInputError("control point sigma must be >= 0 (0 = fixed)")
-            if np.unique(pr.idx).size != pr.idx.size:
-                raise AdjustmentInputError("control point indices repeat")
+            self.priors._validate(n_pt)
+            if self.priors.correlated and not _solver_takes_correlated_priors():
+                # the solver weights control points per axis; dropping the correlations would be silently wrong
+                raise AdjustmentInputError(
+                    "control points with correlated (full) covariance are not supported by the solver yet; "
+                    "give per-axis sigma (e.g. lonlat_priors(..., frame='xyz-diagonal')) or see the solver's "
+                    "SUPPORTS_PRIOR_COVARIANCE")
         if self.cam_param_free is None:
             self.cam_param_free = np.ones((n_img, p), dtype=bool)
         self.cam_param_free = np.asarray(self.cam_param_free, dtype=bool).reshape(n_img, p)
