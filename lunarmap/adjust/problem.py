@@ -196,6 +196,9 @@ class BundleProblem:
         n_img, p = self.cam_params.shape
         if p != self.model.n_params:
             raise AdjustmentInputError(f"cam_params has {p} columns, the image model needs {self.model.n_params}")
+        n_model = getattr(self.model, "n_images", n_img)
+        if n_model != n_img:
+            raise AdjustmentInputError(f"cam_params has {n_img} rows but the image model describes {n_model} images")
         if self.points.ndim != 2 or self.points.shape[1] != 3:
             raise AdjustmentInputError(f"points must be (n, 3), got {self.points.shape}")
         n_pt = self.points.shape[0]
