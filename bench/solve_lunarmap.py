@@ -63,7 +63,9 @@ def main(argv=None):
         pr = res.precision()
         out["precision_s"] = round(time.perf_counter() - t1, 3)
         out["precision_method"] = pr.method
-        out["median_point_sigma"] = float(np.median(np.sqrt(np.diagonal(pr.pt_cov, axis1=1, axis2=2))))
+        sig = np.sqrt(np.diagonal(pr.pt_cov, axis1=1, axis2=2))
+        out["median_point_sigma"] = float(np.median(sig[np.isfinite(sig).all(axis=1)]))
+        out["undetermined_points"] = int(len(pr.undetermined_points))
     try:
         sys.path.insert(0, SHARED)
         import balutil as bu

@@ -104,12 +104,22 @@ def _cholespy(S: sp.csr_matrix):
 
 
 def _splu(S: sp.csr_matrix):
-    lu = spla.splu(S.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                   options={"SymmetricMode": True})
-    piv = np.abs(lu.U.diagonal())
-    if not np.all(np.isfinite(piv)) or piv.min() <= 1e-13 * piv.max():
-        raise np.linalg.LinAlgError("singular reduced system")
-    return lu.solve
+    d = S.diagonal()
+    if not np.all(d > 0):
+        raise np.linalg.LinAlgError("non-positive diagonal")
+    # Jacobi scaling, so the relative pivot test does not mistake radians-vs-metres scale for singularity
+    s = 1.0 / np.sqrt(d)
+    Ss = sp.csc_matrix(S.multiply(s[:, None]).multiply(s[None, :]))
+    lu = spla.splu(Ss, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    piv = lu.U.diagonal()
+    if not np.all(np.isfinite(piv)) or piv.min() <= 1e-13 * np.abs(piv).max():
+        raise np.linalg.LinAlgError("singular or indefinite reduced system")
+
+    def solve(b):
+        sb = s.reshape((-1,) + (1,) * (np.ndim(b) - 1))
+        return lu.solve(np.asarray(b, dtype=np.float64) * sb) * sb
+
+    return solve
 
 
 def _dense(S: sp.csr_matrix):

@@ -26,7 +26,7 @@ estimation) are computed per image coordinate with ``redundancy=True``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg as sla
@@ -46,6 +46,8 @@ __all__ = ["Precision", "posterior_precision", "ordered_track_pairs", "reduced_i
 
 #: largest diagonal element of the Jacobi-scaled inverse accepted as a defined datum
 MAX_SCALED_VARIANCE = 1e13
+#: smallest/largest eigenvalue ratio of a point's normal block below which the point is undetermined
+UNDETERMINED_POINT_RATIO = 1e-10
 #: reduced systems up to this size also keep the dense ``Q_red``
 DENSE_Q_LIMIT = 3000
 
@@ -65,6 +67,9 @@ class Precision:
     redundancy_numbers : (n_obs, 2) or None
     sigma0 : float
     method : str
+    undetermined_points : (k,) int
+        Points whose normal block is numerically singular (rays nearly parallel); their
+        covariance is reported as ``inf`` and they do not constrain the images.
     """
 
     cam_cov: NDArray
@@ -74,6 +79,7 @@ class Precision:
     redundancy_numbers: NDArray | None
     sigma0: float
     method: str
+    undetermined_points: NDArray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 def ordered_track_pairs(pt_idx: NDArray, n_pt: int, active=None):
@@ -409,6 +415,7 @@ def posterior_precision(result, method: str = "auto", redundancy: bool = False,
     terms = _Terms(pb)
     fixed_pt = pb.point_fixed()
     lin = linearize(pb, result.state, st, terms, fixed_pt)
+    undetermined = _regularize_undetermined_points(lin.V, ~fixed_pt)
     S, _, Vinv, _ = reduced_system(lin, st, terms, 0.0, result.free_red)
     Qblk, Qextra, Q = reduced_inverse_blocks(S, result.free_red, st.block_row, st.block_col, p, st.n_cam,
                                              backend=backend)
@@ -418,8 +425,32 @@ def posterior_precision(result, method: str = "auto", redundancy: bool = False,
                     bool(redundancy))
     s2 = result.sigma0 ** 2 if scale_by_sigma0 else 1.0
     Cpp[fixed_pt] = 0.0
+    Cpp[undetermined] = np.inf
     return Precision(Qblk[st.diag_block] * s2, Cpp * s2, Qextra * s2, Q, red if redundancy else None,
-                     result.sigma0, "sparse-selected-inverse")
+                     result.sigma0, "sparse-selected-inverse", undetermined)
+
+
+def _regularize_undetermined_points(V: NDArray, active: NDArray) -> NDArray:
+    """Indices of points whose normal block is numerically singular; their ``V`` is made regular in place.
+
+    A point whose rays have become (nearly) parallel, e.g. one that drifted far along its rays
+    during the adjustment, is not determined in one direction ``e``: ``V e ~ 0`` and so
+    ``W e ~ 0``.  Its inverse block would be rounding noise and corrupt ``S = U - W V^-1 W^T``.
+    Replacing the null eigenvalue by the largest one changes nothing that ``W`` can see (the
+    pseudo-inverse limit) and keeps the images' covariances defined; the point's own covariance
+    is reported as infinite.
+    """
+    idx = np.nonzero(active)[0]
+    if idx.size == 0:
+        return idx
+    ev = np.linalg.eigvalsh(V[idx])
+    bad = idx[~(ev[:, 0] > UNDETERMINED_POINT_RATIO * ev[:, 2])]
+    if bad.size:
+        lam, E = np.linalg.eigh(V[bad])
+        top = np.maximum(lam[:, 2:3], 1e-300)
+        lam = np.where(lam > UNDETERMINED_POINT_RATIO * top, lam, top)
+        V[bad] = np.einsum("nij,nj,nkj->nik", E, lam, E)
+    return bad
 
 
 def _dense_precision(result, redundancy: bool, scale_by_sigma0: bool) -> Precision:
