@@ -15,6 +15,7 @@ from .factor import available_backends, factorize
 from .problem import BundleProblem, ImageObservations, PointPriors, ReducedTerm
 from .result import AdjustmentResult
 from .rfm_affine import AffineRFMModel
+from .linescan_poly import LineScanPolyModel
 from .control_points import lonlat_covariance_to_xyz, lonlat_priors
 from .network import ControlNetwork, read_network, write_network
 from .navigation import NavigationObservations
@@ -28,6 +29,6 @@ __all__ = [
     "available_backends", "factorize",
     "BundleProblem", "ImageObservations", "PointPriors", "ReducedTerm",
     "AdjustmentResult", "AdjustmentState", "SolverOptions", "solve",
-    "AffineRFMModel", "lonlat_priors", "lonlat_covariance_to_xyz",
+    "AffineRFMModel", "LineScanPolyModel", "lonlat_priors", "lonlat_covariance_to_xyz",
     "ControlNetwork", "read_network", "write_network", "NavigationObservations",
 ]

@@ -79,7 +79,7 @@ def local_enu(xyz: NDArray) -> NDArray[np.float64]:
     return np.stack([east, north, up], axis=-2)
 
 
-def _camera(lon_orbit, lat, roll, altitude, n_lines, n_samples, dpos=None, datt=None, ddrift=None):
+def _camera(lon_orbit, lat, roll, altitude, n_lines, n_samples, dpos=None, datt=None, ddrift=None, k1=1.81e-5):
     eo = polar_orbit_eo(lat_center=lat, lon=lon_orbit, altitude=altitude, half_span=2.0 + n_lines * NAC_LINE_TIME,
                         step=0.05, roll_deg=roll)
     if dpos is not None:
@@ -90,7 +90,7 @@ def _camera(lon_orbit, lat, roll, altitude, n_lines, n_samples, dpos=None, datt=
                                  velocities=eo.velocities, quaternions=matrix_to_quat(M @ E),
                                  sun_times=eo.sun_times, sun_positions=eo.sun_positions,
                                  attrs={**eo.attrs, "perturbed": 1})
-    return LineScanCamera(nac_like_interior(n_lines=n_lines, n_samples=n_samples), eo, Shape.moon(),
+    return LineScanCamera(nac_like_interior(n_lines=n_lines, n_samples=n_samples, k1=k1), eo, Shape.moon(),
                           line_times=(-n_lines * NAC_LINE_TIME / 2.0, NAC_LINE_TIME))
 
 
