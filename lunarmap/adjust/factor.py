@@ -57,21 +57,31 @@ class _CvxoptCholmod:
         self._cholmod = cholmod
         self._key = None
         self._symbolic = None
+        self._A = None
 
     def __call__(self, S: sp.csr_matrix):
         from cvxopt import matrix, spmatrix
 
         n = S.shape[0]
-        # lower triangle in CSC order = upper triangle of the symmetric CSR, read as CSC
-        L = sp.tril(S, format="csc")
-        L.sort_indices()
-        cols = np.repeat(np.arange(n, dtype=np.int32), np.diff(L.indptr))
-        A = spmatrix(matrix(np.ascontiguousarray(L.data, dtype=np.float64)),
-                     matrix(L.indices.astype(np.int32)), matrix(cols), (n, n))
-        key = (n, L.nnz, L.indptr.tobytes(), L.indices.tobytes())
+        lower = getattr(S, "lower_csc", None)  # set by SchurStructure.assemble: pattern arrays are reused
+        if lower is not None:
+            indptr, rows, cols, data = lower
+            key = (n, len(rows), id(indptr), id(rows))
+        else:
+            L = sp.tril(S, format="csc")
+            L.sort_indices()
+            indptr, rows, data = L.indptr, L.indices.astype(np.int32), L.data
+            cols = np.repeat(np.arange(n, dtype=np.int32), np.diff(L.indptr))
+            key = (n, L.nnz, L.indptr.tobytes(), L.indices.tobytes())
+        values = matrix(np.ascontiguousarray(data, dtype=np.float64))
         if key != self._key:
+            A = spmatrix(values, matrix(rows), matrix(cols), (n, n))
             self._symbolic = self._cholmod.symbolic(A, uplo="L")
-            self._key = key
+            self._key, self._A = key, A
+        else:
+            # same pattern, entries in the same (column, row) order: swap the values only
+            A = self._A
+            A.V = values
         F = self._symbolic
         try:
             self._cholmod.numeric(A, F)

@@ -384,11 +384,23 @@ class SchurStructure:
         self.csr_indices = cols[order].astype(np.int32)
         self.csr_src = src[order]
         self.n_reduced = n
+        # upper triangle in CSR order = lower triangle in CSC order (what CHOLMOD factorises)
+        rs, cs = rows[order], cols[order]
+        up = cs >= rs
+        self.low_csc_indptr = np.concatenate([[0], np.cumsum(np.bincount(rs[up], minlength=n))]).astype(np.int32)
+        self.low_csc_indices = rs[up].astype(np.int32)
+        self.low_csc_cols = cs[up].astype(np.int32)
+        self.low_csc_src = self.csr_src[up]
 
     def assemble(self, blocks: NDArray[np.float64]) -> sp.csr_matrix:
         """Full symmetric CSR matrix from the upper camera-pair blocks ``(n_blocks, p, p)``."""
-        data = blocks.reshape(-1)[self.csr_src]
-        return sp.csr_matrix((data, self.csr_indices, self.csr_indptr), shape=(self.n_reduced, self.n_reduced))
+        flat = blocks.reshape(-1)
+        S = sp.csr_matrix((flat[self.csr_src], self.csr_indices, self.csr_indptr),
+                          shape=(self.n_reduced, self.n_reduced))
+        # the same matrix's lower triangle in CSC form (row indices, column of each entry, values), with
+        # pattern arrays owned by this structure, so a factoriser can skip tril() and re-analysis
+        S.lower_csc = (self.low_csc_indptr, self.low_csc_cols, self.low_csc_indices, flat[self.low_csc_src])
+        return S
 
     def pair_blocks(self, F: NDArray, W: NDArray) -> NDArray:
         """Sum of ``F_a W_b^T`` over observation pairs into camera-pair blocks, ``(n_blocks, p, p)``.
