@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lunarmap.adjust import BundleProblem, ImageObservations, PointPriors, SolverOptions, solve
+from lunarmap.adjust import BundleProblem, SolverOptions, solve
 from lunarmap.adjust.rfm_affine import AffineRFMModel
 from lunarmap.adjust.simulate_rfm_block import check_point_errors, simulate_rfm_block
 
@@ -63,12 +63,12 @@ def test_initial_points_invert_the_affine(block):
     o = block.problem.obs
     X = block.true_points
     xy = model.project(params, o.cam_idx, X[o.pt_idx])
-    lon_lat_h = np.linalg.norm(X, axis=1) - model.radius
+    heights = np.linalg.norm(X, axis=1) - model.radius
     # every ray monoplotted at the true height of its point hits the point; the mean is the point
     for j in range(3):
         m = o.pt_idx == j
         x0 = model.initial_points(params, o.cam_idx[m], np.zeros(m.sum(), np.int64), xy[m], 1,
-                                  height=lon_lat_h[j])
+                                  height=heights[j])
         assert np.allclose(x0[0], X[j], atol=1e-3)
 
 

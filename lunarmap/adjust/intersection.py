@@ -56,7 +56,9 @@ def intersect_points(model, cam_params: NDArray, cam_idx, pt_idx, xy, sigma=1.0,
     Parameters
     ----------
     model : image model with ``linearize(params, cam_idx, X)`` (for example ``FrameModel``)
-        and, if ``x0`` is not given, ``R0``/``f`` attributes for the midpoint start (frame cameras).
+        and, if ``x0`` is not given, an ``initial_points(params, cam_idx, pt_idx, xy, n_pt)`` method
+        (``AffineRFMModel``, ``LineScanPolyModel``) or ``R0``/``f`` attributes for the midpoint start
+        (frame cameras).
     cam_params : (n_img, p) image parameters.
     cam_idx, pt_idx : (n,) ints; xy : (n, 2) pixels; sigma : scalar or (n, 2) pixels.
     x0 : (n_pt, 3), optional start values.
@@ -77,6 +79,9 @@ def intersect_points(model, cam_params: NDArray, cam_idx, pt_idx, xy, sigma=1.0,
         raise UnobservedParameterError(f"intersection: {int(np.sum(k < 2))} point(s) with fewer than 2 rays, "
                                        f"first: point {int(np.argmax(k < 2))}")
     sig = np.broadcast_to(np.asarray(sigma, float), xy.shape)
+    if x0 is None and hasattr(model, "initial_points"):
+        # models without a closed-form ray (RFM, line scan) provide their own start values
+        x0 = model.initial_points(cam_params, cam_idx, pt_idx, xy, n_pt)
     if x0 is None:
         from .rotation import rotvec_to_matrix
 

@@ -82,6 +82,22 @@ class LineScanPolyModel:
         """Normalised time of image ``cam`` (dimensionless, -1 .. 1 over the image)."""
         return (t - self._t_mid[cam]) / self._t_half[cam]
 
+    def initial_points(self, params: NDArray, cam_idx: NDArray, pt_idx: NDArray, xy: NDArray, n_pt: int,
+                       height: float = 0.0) -> NDArray[np.float64]:
+        """Start values of the points (metres): mean of the reference cameras' rays at ``height`` metres.
+
+        The corrections are ignored (they are small); refine with
+        :func:`lunarmap.adjust.intersection.intersect_points`.
+        """
+        cam_idx = np.asarray(cam_idx, np.int64)
+        pt_idx = np.asarray(pt_idx, np.int64)
+        g = np.empty((cam_idx.size, 3))
+        for i in np.unique(cam_idx):
+            m = cam_idx == i
+            g[m] = self.cameras[i].image_to_ground(xy[m, 0], xy[m, 1], height)
+        cnt = np.maximum(np.bincount(pt_idx, minlength=n_pt), 1)
+        return np.column_stack([np.bincount(pt_idx, weights=g[:, k], minlength=n_pt) for k in range(3)]) / cnt[:, None]
+
     # -- one image: focal-plane residual at given times ---------------------------
     def _geometry(self, cam: int, params: NDArray, X: NDArray, t: NDArray):
         """Sensor-frame vectors v, the pieces for the partials, detector (r, s) pixels."""

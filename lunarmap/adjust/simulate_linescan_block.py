@@ -111,18 +111,8 @@ def simulate_linescan_block(rolls=(-15.0, 0.0, 15.0), degree: int = 1, n_points:
     prior = NavigationObservations(np.zeros((n_img, model.n_params)), np.broadcast_to(sig, (n_img, model.n_params)),
                                    np.zeros(n_img, np.int64), name="coefficient priors")
     params0 = model.initial_params()
-    x0 = intersect_points(model, params0, cam_idx, pt_idx, xy, sigma_px, n_pt=X.shape[0],
-                          x0=_monoplot(nav_cams, cam_idx, pt_idx, xy, X.shape[0])).xyz
+    x0 = intersect_points(model, params0, cam_idx, pt_idx, xy, sigma_px, n_pt=X.shape[0]).xyz
     problem = BundleProblem(model, params0, x0, ImageObservations(cam_idx, pt_idx, xy, sigma_px), priors,
                             terms=[prior])
     return SimulatedLineScanBlock(problem, prior, true_params, X, control, check, true_cams)
 
-
-def _monoplot(cams, cam_idx, pt_idx, xy, n_pt):
-    # start values: every measure's ray to the reference sphere, averaged per point
-    out = np.zeros((n_pt, 3))
-    for i, cam in enumerate(cams):
-        m = cam_idx == i
-        out += np.column_stack([np.bincount(pt_idx[m], weights=g, minlength=n_pt) for g in
-                                cam.image_to_ground(xy[m, 0], xy[m, 1], 0.0).T])
-    return out / np.bincount(pt_idx, minlength=n_pt)[:, None]

@@ -32,7 +32,6 @@ from ..errors import SimulationWarning, warn
 from ..orientation.exterior import ExteriorOrientation
 from ..orientation.rotation import matrix_to_quat, quat_to_matrix
 from ..rpc import fit_rpc
-from ..rpc.model import RationalFunctionModel
 from ..testing.cameras import NAC_LINE_TIME, nac_like_interior, polar_orbit_eo
 from .intersection import intersect_points
 from .problem import BundleProblem, ImageObservations, PointPriors
@@ -174,8 +173,7 @@ def simulate_rfm_block(n_images: int = 7, rolls=None, n_points: int = 60, n_cont
 
     model = AffineRFMModel(rfms, origin=origin)
     params0 = model.initial_params()
-    x0 = model.initial_points(params0, cam_idx, pt_idx, xy, X.shape[0])
-    X0 = intersect_points(model, params0, cam_idx, pt_idx, xy, sigma_px, n_pt=X.shape[0], x0=x0).xyz
+    X0 = intersect_points(model, params0, cam_idx, pt_idx, xy, sigma_px, n_pt=X.shape[0]).xyz
     problem = BundleProblem(model, params0, X0, ImageObservations(cam_idx, pt_idx, xy, sigma_px), priors)
     return SimulatedRfmBlock(problem, rfms, X, control, check, rolls, (lon0, lat0))
 
