@@ -91,3 +91,22 @@ def test_fit_many_on_a_two_process_cluster_equals_serial():
         np.testing.assert_array_equal(f.model.coefficients, s.model.coefficients)
         np.testing.assert_array_equal(p.model.coefficients, s.model.coefficients)
         assert p.check == s.check
+
+
+def test_exact_camera_ships_without_caches_and_fits_identically():
+    import pickle
+
+    from lunarmap.camera import Shape
+    from lunarmap.rpc.parallel import ExactCamera
+    from lunarmap.testing.cameras import NAC_LINE_TIME, polar_orbit_eo
+
+    cam = LineScanCamera(nac_like_interior_short(), polar_orbit_eo(half_span=1.0, step=0.05), Shape.moon(),
+                         line_times=(-0.5, NAC_LINE_TIME))
+    cold = len(pickle.dumps(ExactCamera(cam)))
+    fit = fit_rpc(cam)  # builds the camera's per-line table
+    assert cam._table is not None
+    blob = pickle.dumps(ExactCamera(cam))
+    assert len(blob) <= cold + 1024  # the rebuildable table stays behind
+    shipped = pickle.loads(blob).camera
+    assert shipped._table is None and cam._table is not None  # the caller's camera keeps its cache
+    np.testing.assert_array_equal(fit_rpc(shipped).model.coefficients, fit.model.coefficients)
