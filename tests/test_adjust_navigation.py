@@ -74,6 +74,7 @@ def test_block_with_navigation_recovers_truth_consistently_with_sigma():
     assert abs(np.sqrt(np.mean(z_p ** 2)) - 1.0) < 0.1
     # offsets/drifts of one block: ~24 independent values; P(any beyond 3.5 sigma) ~ 24 * 4.7e-4 = 1 %
     assert abs(z_x.mean()) < 0.5
+    assert np.mean(np.abs(z_x) < 2) >= 0.8
     assert np.max(np.abs(z_x)) < 3.5
     # group quadratic forms add up to the total cost
     q = res.group_quadratic_forms()
