@@ -7,10 +7,16 @@ thread whenever another process held a core (measured: 6.4 s vs 0.4 s for
 one NAC fit). dask worker processes already run with one BLAS thread
 (distributed's ``pre-spawn-environ``); this gives the serial path the same.
 
-Implemented with ``ctypes`` on the OpenBLAS that numpy loaded (what
-threadpoolctl does, which lunarmap does not depend on); a no-op when the
-library or its symbols are not found. Nested and concurrent use is counted
-under a lock, so the original thread count is restored by the last exit.
+Implemented with ``ctypes`` on the OpenBLAS that numpy loaded; a no-op
+when the library or its symbols are not found. Nested and concurrent use is
+counted under a lock, so the original thread count is restored by the last
+exit. threadpoolctl (3.8) was tried instead and is not equivalent here: it
+lets only one "controlling" Python thread change OpenBLAS's process-wide
+limit and silently ignores the others, so on dask's threaded scheduler a
+task entering the block from a second thread (or leaving it last) did not
+set or restore the limit; the tiled fit then ran some BLAS calls on two
+threads and stopped being bit-identical to the serial fit
+(``tests/test_rpc_fit.py::test_dask_tiles_equal_serial`` failed).
 """
 
 from __future__ import annotations
