@@ -290,12 +290,12 @@ def _banded_blocks(Ss: sp.csr_matrix, fi: NDArray, pos: NDArray, block_row, bloc
     return Qblk
 
 
-def _point_cov_py(Qblk, Vinv, W, Ac, Ap, cam_idx, pt_order, pt_start, pair_start, pair_blk, active, diag_block,
+def _point_cov_py(Qblk, Vinv, Ac, Ap, cam_idx, pt_order, pt_start, pair_start, pair_blk, active, diag_block,
                   max_track, want_red):
     n_pt = Vinv.shape[0]
-    p = W.shape[1]
+    p = Ac.shape[2]
     Cpp = np.zeros((n_pt, 3, 3))
-    red = np.zeros((W.shape[0] if want_red else 0, 2))
+    red = np.zeros((Ac.shape[0] if want_red else 0, 2))
     F = np.empty((max_track, p, 3))
     G = np.empty((max_track, p, 3))
     for j in range(n_pt):
@@ -318,8 +318,12 @@ def _point_cov_py(Qblk, Vinv, W, Ac, Ap, cam_idx, pt_order, pt_start, pair_start
         for t in range(k):
             i = pt_order[s + t]
             for x in range(p):
+                # W_i = Ac_i^T Ap_i
+                w0 = Ac[i, 0, x] * Ap[i, 0, 0] + Ac[i, 1, x] * Ap[i, 1, 0]
+                w1 = Ac[i, 0, x] * Ap[i, 0, 1] + Ac[i, 1, x] * Ap[i, 1, 1]
+                w2 = Ac[i, 0, x] * Ap[i, 0, 2] + Ac[i, 1, x] * Ap[i, 1, 2]
                 for m in range(3):
-                    F[t, x, m] = W[i, x, 0] * Vi[0, m] + W[i, x, 1] * Vi[1, m] + W[i, x, 2] * Vi[2, m]
+                    F[t, x, m] = w0 * Vi[0, m] + w1 * Vi[1, m] + w2 * Vi[2, m]
         base = pair_start[j]
         # G_t = sum_u Q_{c_t c_u} F_u
         for t in range(k):
@@ -420,7 +424,7 @@ def posterior_precision(result, method: str = "auto", redundancy: bool = False,
     Qblk, Qextra, Q = reduced_inverse_blocks(S, result.free_red, st.block_row, st.block_col, p, st.n_cam,
                                              backend=backend)
     kern = _point_cov_kernel
-    Cpp, red = kern(Qblk, Vinv, lin.W, np.ascontiguousarray(lin.Ac), np.ascontiguousarray(lin.Ap), st.cam_idx,
+    Cpp, red = kern(Qblk, Vinv, np.ascontiguousarray(lin.Ac), np.ascontiguousarray(lin.Ap), st.cam_idx,
                     st.pt_order, st.pt_start, st.pair_start, st.pair_blk, st.active, st.diag_block, st.max_track,
                     bool(redundancy))
     s2 = result.sigma0 ** 2 if scale_by_sigma0 else 1.0
@@ -464,7 +468,8 @@ def _dense_precision(result, redundancy: bool, scale_by_sigma0: bool) -> Precisi
     fixed_pt = pb.point_fixed()
     lin = linearize(pb, result.state, st, terms, fixed_pt)
     S, _, Vinv, _ = reduced_system(lin, st, terms, 0.0, result.free_red)
-    F = np.matmul(lin.W, Vinv[pb.obs.pt_idx])
+    W = lin.W if lin.W is not None else np.einsum("nki,nkj->nij", lin.Ac, lin.Ap)
+    F = np.matmul(W, Vinv[pb.obs.pt_idx])
     # Jacobi scaling keeps the dense factorisation well conditioned (metres vs radians)
     Sd = S.toarray()
     d = 1.0 / np.sqrt(np.diag(Sd))

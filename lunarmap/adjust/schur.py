@@ -35,7 +35,7 @@ except ImportError:  # pragma: no cover - exercised only without numba
     numba = None
     prange = range
 
-__all__ = ["SchurStructure", "inv_sym3", "aggregation_matrix", "normal_blocks", "HAVE_COMPILED"]
+__all__ = ["SchurStructure", "inv_sym3", "aggregation_matrix", "normal_blocks", "whiten", "HAVE_COMPILED"]
 
 HAVE_COMPILED = numba is not None
 
@@ -47,13 +47,81 @@ def _jit(parallel=False):
 
 
 @_jit()
-def _normal_blocks_kernel(Ac, Ap, r, cam_idx, pt_idx, n_cam, n_pt):
+def _whiten_kernel(x, xy, ws, Jc, Jp, cam_free, pt_fixed, cam_idx, pt_idx):
+    # r = (x - xy) * ws and the Jacobians whitened in place; fixed image parameters / points get no column
+    n = x.shape[0]
+    p = Jc.shape[2]
+    r = np.empty((n, 2))
+    cost = 0.0
+    for i in range(n):
+        c = cam_idx[i]
+        fixed = pt_fixed[pt_idx[i]]
+        for k in range(2):
+            w = ws[i, k]
+            rk = (x[i, k] - xy[i, k]) * w
+            r[i, k] = rk
+            cost += rk * rk
+            for a in range(p):
+                Jc[i, k, a] = Jc[i, k, a] * w if cam_free[c, a] else 0.0
+            for a in range(3):
+                Jp[i, k, a] = 0.0 if fixed else Jp[i, k, a] * w
+    return r, cost
+
+
+def whiten(x: NDArray, xy: NDArray, ws: NDArray, Jc: NDArray, Jp: NDArray, cam_free: NDArray, pt_fixed: NDArray,
+           cam_idx: NDArray, pt_idx: NDArray):
+    """Whitened residuals ``(x - xy) * ws`` ``(n, 2)`` and their sum of squares; ``Jc``, ``Jp`` whitened in place.
+
+    Columns of fixed image parameters (``cam_free`` false) and rows of fixed points are zeroed.
+    """
+    if numba is not None:
+        return _whiten_kernel(x, xy, ws, Jc, Jp, cam_free, pt_fixed, cam_idx, pt_idx)
+    r = (x - xy) * ws
+    Jc *= ws[:, :, None]
+    Jp *= ws[:, :, None]
+    if not cam_free.all():
+        Jc *= cam_free[cam_idx][:, None, :]
+    if pt_fixed.any():
+        Jp[pt_fixed[pt_idx]] = 0.0
+    return r, float(np.sum(r * r))
+
+
+@_jit()
+def _back_substitute_kernel(Ac, Ap, Vinv, gp, dc, cam_idx, pt_order, pt_start, active):
+    n_pt = Vinv.shape[0]
+    p = Ac.shape[2]
+    dp = np.zeros((n_pt, 3))
+    for j in range(n_pt):
+        if not active[j]:
+            continue
+        t0 = -gp[j, 0]
+        t1 = -gp[j, 1]
+        t2 = -gp[j, 2]
+        for q in range(pt_start[j], pt_start[j + 1]):
+            i = pt_order[q]
+            c = cam_idx[i]
+            # W_i^T dc = Ap_i^T (Ac_i dc)
+            e0 = 0.0
+            e1 = 0.0
+            for a in range(p):
+                e0 += Ac[i, 0, a] * dc[c, a]
+                e1 += Ac[i, 1, a] * dc[c, a]
+            t0 -= Ap[i, 0, 0] * e0 + Ap[i, 1, 0] * e1
+            t1 -= Ap[i, 0, 1] * e0 + Ap[i, 1, 1] * e1
+            t2 -= Ap[i, 0, 2] * e0 + Ap[i, 1, 2] * e1
+        for m in range(3):
+            dp[j, m] = Vinv[j, m, 0] * t0 + Vinv[j, m, 1] * t1 + Vinv[j, m, 2] * t2
+    return dp
+
+
+@_jit()
+def _normal_blocks_kernel(Ac, Ap, r, cam_idx, pt_idx, n_cam, n_pt, want_W):
     # serial: the scatter-adds into U / V would race across threads
     n = Ac.shape[0]
     p = Ac.shape[2]
     U = np.zeros((n_cam, p, p))
     V = np.zeros((n_pt, 3, 3))
-    W = np.empty((n, p, 3))
+    W = np.empty((n if want_W else 0, p, 3))
     gc = np.zeros((n_cam, p))
     gp = np.zeros((n_pt, 3))
     for i in range(n):
@@ -67,8 +135,9 @@ def _normal_blocks_kernel(Ac, Ap, r, cam_idx, pt_idx, n_cam, n_pt):
             gc[c, a] += a0 * r0 + a1 * r1
             for b in range(a, p):
                 U[c, a, b] += a0 * Ac[i, 0, b] + a1 * Ac[i, 1, b]
-            for b in range(3):
-                W[i, a, b] = a0 * Ap[i, 0, b] + a1 * Ap[i, 1, b]
+            if want_W:
+                for b in range(3):
+                    W[i, a, b] = a0 * Ap[i, 0, b] + a1 * Ap[i, 1, b]
         for a in range(3):
             a0 = Ap[i, 0, a]
             a1 = Ap[i, 1, a]
@@ -86,13 +155,19 @@ def _normal_blocks_kernel(Ac, Ap, r, cam_idx, pt_idx, n_cam, n_pt):
     return U, V, W, gc, gp
 
 
-def normal_blocks(Ac: NDArray, Ap: NDArray, r: NDArray, cam_idx: NDArray, pt_idx: NDArray, n_cam: int, n_pt: int):
+def normal_blocks(Ac: NDArray, Ap: NDArray, r: NDArray, cam_idx: NDArray, pt_idx: NDArray, n_cam: int, n_pt: int,
+                  want_W: bool = True):
     """Camera blocks ``U (n_cam, p, p)``, point blocks ``V (n_pt, 3, 3)``, cross blocks ``W (n_obs, p, 3)``
     and gradients ``g_c (n_cam, p)``, ``g_p (n_pt, 3)`` of whitened Jacobians ``Ac (n, 2, p)``, ``Ap (n, 2, 3)``
-    and residuals ``r (n, 2)``."""
+    and residuals ``r (n, 2)``.
+
+    ``want_W=False`` returns ``W = None``: the compiled kernels form ``W_i = Ac_i^T Ap_i`` on the fly, which
+    reads as many numbers as a stored ``W`` would and saves its ``18 n_obs`` doubles.
+    """
     if numba is not None:
-        return _normal_blocks_kernel(np.ascontiguousarray(Ac), np.ascontiguousarray(Ap), np.ascontiguousarray(r),
-                                     cam_idx, pt_idx, n_cam, n_pt)
+        U, V, W, gc, gp = _normal_blocks_kernel(np.ascontiguousarray(Ac), np.ascontiguousarray(Ap),
+                                                np.ascontiguousarray(r), cam_idx, pt_idx, n_cam, n_pt, want_W)
+        return U, V, (W if want_W else None), gc, gp
     n, _, p = Ac.shape
     UU = np.einsum("nki,nkj->nij", Ac, Ac).reshape(n, p * p)
     VV = np.einsum("nki,nkj->nij", Ap, Ap).reshape(n, 9)
@@ -124,7 +199,7 @@ def _pair_keys_kernel(cam_idx, pt_order, pt_start, active, n_cam, n_pairs):
 
 
 @_jit()
-def _schur_kernel(U, V, W, gp, mu, cam_idx, pt_order, pt_start, pair_start, pair_blk, active, diag_block,
+def _schur_kernel(U, V, Ac, Ap, gp, mu, cam_idx, pt_order, pt_start, pair_start, pair_blk, active, diag_block,
                   n_blocks, max_track, n_chunks):
     n_cam = U.shape[0]
     p = U.shape[1]
@@ -134,6 +209,7 @@ def _schur_kernel(U, V, W, gp, mu, cam_idx, pt_order, pt_start, pair_start, pair
     Vinv = np.empty((n_pt, 3, 3))
     for ch in prange(n_chunks):
         F = np.empty((max_track, p, 3))
+        Wl = np.empty((max_track, p, 3))
         Vi = np.empty((3, 3))
         M = np.empty((p, p))
         A = acc[ch]
@@ -174,9 +250,15 @@ def _schur_kernel(U, V, W, gp, mu, cam_idx, pt_order, pt_start, pair_start, pair
                 i = pt_order[s + t]
                 ci = cam_idx[i]
                 for x in range(p):
-                    w0 = W[i, x, 0]
-                    w1 = W[i, x, 1]
-                    w2 = W[i, x, 2]
+                    # W_i = Ac_i^T Ap_i, formed here instead of stored
+                    a0 = Ac[i, 0, x]
+                    a1 = Ac[i, 1, x]
+                    w0 = a0 * Ap[i, 0, 0] + a1 * Ap[i, 1, 0]
+                    w1 = a0 * Ap[i, 0, 1] + a1 * Ap[i, 1, 1]
+                    w2 = a0 * Ap[i, 0, 2] + a1 * Ap[i, 1, 2]
+                    Wl[t, x, 0] = w0
+                    Wl[t, x, 1] = w1
+                    Wl[t, x, 2] = w2
                     f0 = w0 * Vi[0, 0] + w1 * Vi[1, 0] + w2 * Vi[2, 0]
                     f1 = w0 * Vi[0, 1] + w1 * Vi[1, 1] + w2 * Vi[2, 1]
                     f2 = w0 * Vi[0, 2] + w1 * Vi[1, 2] + w2 * Vi[2, 2]
@@ -188,8 +270,7 @@ def _schur_kernel(U, V, W, gp, mu, cam_idx, pt_order, pt_start, pair_start, pair
             for t in range(k):
                 ca = cam_idx[pt_order[s + t]]
                 for u in range(t, k):
-                    ib = pt_order[s + u]
-                    cb = cam_idx[ib]
+                    cb = cam_idx[pt_order[s + u]]
                     Ab = A[pair_blk[q]]
                     q += 1
                     for x in range(p):
@@ -197,7 +278,7 @@ def _schur_kernel(U, V, W, gp, mu, cam_idx, pt_order, pt_start, pair_start, pair
                         f1 = F[t, x, 1]
                         f2 = F[t, x, 2]
                         for y in range(p):
-                            M[x, y] = f0 * W[ib, y, 0] + f1 * W[ib, y, 1] + f2 * W[ib, y, 2]
+                            M[x, y] = f0 * Wl[u, y, 0] + f1 * Wl[u, y, 1] + f2 * Wl[u, y, 2]
                     if ca < cb or (ca == cb and t == u):
                         for x in range(p):
                             for y in range(p):
@@ -348,7 +429,7 @@ class SchurStructure:
         self.block_col = bkeys % n_cam
         self.n_blocks = bkeys.size
 
-    def schur(self, U: NDArray, V: NDArray, W: NDArray, gp: NDArray, mu: float):
+    def schur(self, U: NDArray, V: NDArray, Ac: NDArray, Ap: NDArray, gp: NDArray, mu: float):
         """Damped Schur complement by the compiled kernel.
 
         Returns the upper camera-pair blocks of ``U - W (V + mu diag V)^-1 W^T`` ``(n_blocks, p, p)``
@@ -357,10 +438,15 @@ class SchurStructure:
         """
         # one chunk: on a shared 2-core machine numba's thread pool was slower than a serial pass
         n_chunks = 1
-        return _schur_kernel(np.ascontiguousarray(U), np.ascontiguousarray(V), np.ascontiguousarray(W),
+        return _schur_kernel(np.ascontiguousarray(U), np.ascontiguousarray(V), Ac, Ap,
                              np.ascontiguousarray(gp), float(mu), self.cam_idx, self.pt_order, self.pt_start,
                              self.pair_start, self.pair_blk, self.active, self.diag_block, self.n_blocks,
                              self.max_track, n_chunks)
+
+    def back_substitute(self, Ac: NDArray, Ap: NDArray, Vinv: NDArray, gp: NDArray, dc: NDArray) -> NDArray:
+        """Point corrections ``dp_j = Vinv_j (-g_p,j - sum_i W_i^T dc_cam(i))`` ``(n_pt, 3)`` (zero for fixed points)."""
+        return _back_substitute_kernel(Ac, Ap, Vinv, gp, np.ascontiguousarray(dc), self.cam_idx, self.pt_order,
+                                       self.pt_start, self.active)
 
     def _build_csr(self):
         p = self.p

@@ -3,14 +3,17 @@
 One iteration (DLR paper, ``seeds/004``, Eq. 4: Gauss-Markov least squares of
 the linearised collinearity and navigation observation equations, Eqs. 1-3):
 
-1. whitened residuals and analytic Jacobians of every image observation at once;
-2. camera blocks ``U``, point blocks ``V``, cross blocks ``W`` and gradients summed
-   with sparse aggregation matrices (:mod:`.schur`);
+1. whitened residuals and analytic Jacobians of every image observation at once
+   (one compiled pass for frame cameras, :mod:`.collinearity`);
+2. camera blocks ``U``, point blocks ``V``, cross blocks ``W`` and gradients, one
+   compiled pass (:func:`.schur.normal_blocks`);
 3. LM damping ``N + mu diag(N)`` (Marquardt scaling, the trust-region update
-   of Nielsen as used by Ceres), point elimination and a sparse Cholesky of the
-   reduced camera system (:mod:`.factor`), back-substitution of the points;
+   of Nielsen as used by Ceres), point elimination (:meth:`.schur.SchurStructure.schur`)
+   and a sparse Cholesky of the reduced camera system whose symbolic analysis is
+   done once per adjustment (:class:`.factor.Factorizer`), back-substitution of the points;
 4. the step is accepted if the cost decreases; the damping adapts from the
-   ratio of actual to predicted decrease.
+   ratio of actual to predicted decrease (the prediction ``(mu d^T D d - g^T d) / 2``
+   needs no pass over the observations).
 
 Convergence: relative cost decrease below ``ftol`` (equivalently, relative change
 of sigma0^2), step norm below ``xtol`` times the parameter norm, or the maximum
@@ -34,7 +37,7 @@ from numpy.typing import NDArray
 from ..errors import AdjustmentDivergedError, DatumDefectError
 from .factor import Factorizer
 from .problem import BundleProblem
-from .schur import SchurStructure, inv_sym3, normal_blocks
+from .schur import SchurStructure, inv_sym3, normal_blocks, whiten
 
 __all__ = ["SolverOptions", "AdjustmentState", "Linearization", "solve", "linearize", "evaluate_cost"]
 
@@ -46,6 +49,7 @@ class SolverOptions:
     ``ftol``: relative cost decrease that stops the iteration (Ceres' function tolerance);
     ``xtol``: relative step size that stops it; ``max_iterations``: accepted + rejected steps;
     ``initial_mu``: initial Marquardt damping (1 / Ceres' initial trust-region radius);
+    ``min_mu``: smallest damping (1 / Ceres' maximum trust-region radius);
     ``backend``: sparse factorisation (:func:`lunarmap.adjust.factor.factorize`);
     ``compiled``: use the numba kernels for the normal blocks and the Schur complement when numba is
     installed (``False`` forces the numpy path, for testing).
@@ -55,6 +59,7 @@ class SolverOptions:
     xtol: float = 1e-8
     max_iterations: int = 100
     initial_mu: float = 1e-4
+    min_mu: float = 1e-16
     backend: str = "auto"
     compiled: bool = True
     verbose: bool = False
@@ -82,7 +87,7 @@ class Linearization:
     Ap: NDArray           # (n_obs, 2, 3)
     U: NDArray            # (n_cam, p, p)
     V: NDArray            # (n_pt, 3, 3)
-    W: NDArray            # (n_obs, p, 3)
+    W: NDArray | None     # (n_obs, p, 3); None on the compiled path (formed on the fly from Ac, Ap)
     gc: NDArray           # (n_cam * p,)
     gp: NDArray           # (n_pt, 3)
     rx: NDArray           # (m,) whitened camera-level residuals
@@ -175,18 +180,14 @@ def linearize(problem: BundleProblem, state: AdjustmentState, structure: SchurSt
     o = problem.obs
     x, Jc, Jp = _model_linearize(problem, state)
     ws = np.sqrt(state.obs_weight)[:, None] / o.sigma        # (n, 2) sqrt of weights
-    r = (x - o.xy) * ws
-    # whiten in place when the model returned fresh arrays (it always does; copies otherwise)
-    Ac = np.multiply(Jc, ws[:, :, None], out=Jc if Jc.flags.writeable else None)
-    Ap = np.multiply(Jp, ws[:, :, None], out=Jp if Jp.flags.writeable else None)
-    if not problem.cam_param_free.all():
-        Ac *= problem.cam_param_free[o.cam_idx][:, None, :]     # fixed image parameters get no column
-    if fixed_pt.any():
-        Ap[fixed_pt[o.pt_idx]] = 0.0
+    # whitened in place (fresh, writable, contiguous float arrays from the model; copied otherwise)
+    Ac = np.require(Jc, np.float64, ["C", "W"])
+    Ap = np.require(Jp, np.float64, ["C", "W"])
+    r, cost = whiten(np.ascontiguousarray(x, np.float64), o.xy, ws, Ac, Ap, problem.cam_param_free, fixed_pt,
+                     structure.cam_idx, structure.pt_idx)
     U, V, W, gc, gp = normal_blocks(Ac, Ap, r, structure.cam_idx, structure.pt_idx, structure.n_cam,
-                                    structure.n_pt)
+                                    structure.n_pt, want_W=not structure.compiled)
     gc = gc.ravel()
-    cost = float(np.sum(r * r))
     pt = _prior_terms(problem, state.points)
     if pt is not None:
         idx, rr, wsq = pt
@@ -217,7 +218,7 @@ def reduced_system(lin: Linearization, structure: SchurStructure, terms: _Terms,
     """
     p = structure.p
     if structure.compiled:
-        blocks, Fg, Vinv = structure.schur(lin.U, lin.V, lin.W, lin.gp, mu)
+        blocks, Fg, Vinv = structure.schur(lin.U, lin.V, lin.Ac, lin.Ap, lin.gp, mu)
         rhs_c = -lin.gc + Fg.ravel()
     else:
         V = lin.V.copy()
@@ -264,6 +265,8 @@ def back_substitute(lin: Linearization, structure: SchurStructure, Vinv: NDArray
     p = structure.p
     o = problem.obs
     dc = dred[:terms.n_cam_red].reshape(-1, p)
+    if structure.compiled:
+        return structure.back_substitute(lin.Ac, lin.Ap, Vinv, lin.gp, dc)
     Wdc = np.einsum("nij,ni->nj", lin.W, dc[o.cam_idx])
     t = -lin.gp - structure.pt_agg @ Wdc
     return np.einsum("nij,nj->ni", Vinv, t)
@@ -365,7 +368,7 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
             print(f"it {n_iter:3d} cost {state.cost:.6e} -> {new_cost:.6e} mu {mu:.2e} |dx| {step_norm:.3e}")
         if np.isfinite(new_cost) and actual > 0:
             rho = actual / pred if pred > 0 else 1.0
-            mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            mu = max(mu * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), opt.min_mu)
             nu = 2.0
             old_cost = state.cost
             state = new
