@@ -354,13 +354,13 @@ class SchurStructure:
         self.n_obs = n_obs
         self.cam_idx, self.pt_idx = cam_idx, pt_idx
         self.pt_of_obs = pt_idx
-        self.cam_agg = aggregation_matrix(cam_idx, n_cam)
-        self.pt_agg = aggregation_matrix(pt_idx, n_pt)
         self.compiled = HAVE_COMPILED if compiled is None else (compiled and HAVE_COMPILED)
         if self.compiled:
             self._init_compiled(active_pt)
             self._build_csr()
             return
+        self.cam_agg = aggregation_matrix(cam_idx, n_cam)
+        self.pt_agg = aggregation_matrix(pt_idx, n_pt)
         # observations ordered by point: pairs (a, b) of one point are a run of that order
         order = np.argsort(pt_idx, kind="stable")
         sp_pt = pt_idx[order]
@@ -408,7 +408,9 @@ class SchurStructure:
 
     def _init_compiled(self, active_pt):
         n_cam, n_pt = self.n_cam, self.n_pt
-        order = np.argsort(self.pt_idx, kind="stable")
+        # BAL files and most matchers list observations point by point: then no sort is needed
+        order = (np.arange(self.n_obs) if np.all(self.pt_idx[1:] >= self.pt_idx[:-1])
+                 else np.argsort(self.pt_idx, kind="stable"))
         track = np.bincount(self.pt_idx, minlength=n_pt)
         active = np.ones(n_pt, bool) if active_pt is None else np.asarray(active_pt, bool)
         k = np.where(active, track, 0)
@@ -421,9 +423,20 @@ class SchurStructure:
         n_pairs = int(self.pair_start[-1])
         keys = _pair_keys_kernel(self.cam_idx, self.pt_order, self.pt_start, active, n_cam, n_pairs)
         diag_keys = np.arange(n_cam, dtype=np.int64) * (n_cam + 1)
-        bkeys, inv = np.unique(np.concatenate([keys, diag_keys]), return_inverse=True)
-        self.pair_blk = inv[:n_pairs].astype(np.int64)
-        self.diag_block = inv[n_pairs:].astype(np.int64)
+        if n_cam * n_cam <= 50_000_000:
+            # dense key table instead of sorting millions of pair keys
+            present = np.zeros(n_cam * n_cam, bool)
+            present[keys] = True
+            present[diag_keys] = True
+            bkeys = np.flatnonzero(present)
+            rank = np.cumsum(present) - 1
+            self.pair_blk = rank[keys]
+            self.diag_block = rank[diag_keys]
+            del present, rank
+        else:
+            bkeys, inv = np.unique(np.concatenate([keys, diag_keys]), return_inverse=True)
+            self.pair_blk = inv[:n_pairs].astype(np.int64)
+            self.diag_block = inv[n_pairs:].astype(np.int64)
         self.n_pairs = n_pairs
         self.block_row = bkeys // n_cam
         self.block_col = bkeys % n_cam
