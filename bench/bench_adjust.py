@@ -10,7 +10,8 @@ and ``solve_ceres.py`` (pycolmap's Ceres 2.2, SPARSE_SCHUR).  Ceres is skipped, 
 message, when pycolmap is not importable.
 
 "Time to target" is the time at which a solver's cost trace first reaches the final cost of
-Ceres (or of scipy if Ceres is absent) times ``1 + 1e-6``.
+Ceres (or of scipy if Ceres is absent) times ``1 + 1e-6``; the table also gives it as a ratio to
+the reference solver's own time to that cost, and the precision time as a ratio to the solve.
 
 Usage::
 
@@ -101,29 +102,36 @@ def main(argv=None):
                       + (f", precision {r.get('precision_s')} s" if 'precision_s' in r else "")
                       + (f"  ERROR {rec['error'][-300:]}" if "error" in rec else ""), flush=True)
     print()
-    print("| size | solver | median solve s | median time to target s | final cost | iterations | peak RSS MB |"
-          " ratio solve / lunarmap | precision s |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| size | solver | median solve s | median time to target s | time to target / reference |"
+          " final cost | iterations | peak RSS MB | ratio solve / lunarmap | precision s | precision / solve |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for size in args.sizes:
         ref = "ceres" if (size, "ceres") in runs else "scipy"
         finals = [r["result"]["cost_final"] for r in runs.get((size, ref), []) if "result" in r]
         target = (min(finals) if finals else None)
-        med = {}
+        med, ttt = {}, {}
+        for name in solvers:
+            rs = [r["result"] for r in runs.get((size, name), []) if "result" in r]
+            if rs:
+                tt = [time_to(r.get("trace_t_cost", []), target * (1 + 1e-6)) for r in rs] if target else []
+                tt = [t for t in tt if t is not None]
+                ttt[name] = statistics.median(tt) if tt else None
         for name in solvers:
             rs = [r["result"] for r in runs.get((size, name), []) if "result" in r]
             if not rs:
                 continue
             solve_s = statistics.median(r["solve_s"] for r in rs)
-            tt = [time_to(r.get("trace_t_cost", []), target * (1 + 1e-6)) for r in rs] if target else []
-            tt = [t for t in tt if t is not None]
             med[name] = solve_s
             prec = [r["precision_s"] for r in rs if "precision_s" in r]
-            print(f"| {size} | {name} | {solve_s:.2f} | {statistics.median(tt) if tt else 'not reached'} | "
-                  f"{statistics.median(r['cost_final'] for r in rs):.6g} | "
+            tt, tref = ttt.get(name), ttt.get(ref)
+            ratio = round(tt / tref, 2) if tt is not None and tref else ""
+            print(f"| {size} | {name} | {solve_s:.2f} | {round(tt, 2) if tt is not None else 'not reached'} | "
+                  f"{ratio} | {statistics.median(r['cost_final'] for r in rs):.6g} | "
                   f"{statistics.median(r['iterations'] for r in rs)} | "
                   f"{max(r.get('peak_rss_mb', 0) for r in rs):.0f} | "
                   f"{'' if 'lunarmap' not in med else round(solve_s / med['lunarmap'], 2)} | "
-                  f"{statistics.median(prec) if prec else ''} |")
+                  f"{statistics.median(prec) if prec else ''} | "
+                  f"{round(statistics.median(prec) / solve_s, 2) if prec else ''} |")
 
 
 if __name__ == "__main__":
