@@ -12,7 +12,11 @@ timed in the same run, next to the absolute rate:
    ``distributed.LocalCluster`` (1 thread per worker), with worker processes
    (started with :data:`lunarmap.matching.WORKER_ENVIRON`) and with in-process
    workers (threads; numpy releases the GIL). Cluster start-up and a warm-up
-   run are not timed.
+   run are not timed; serial and cluster runs alternate (best of
+   ``--repeat`` each). CPU seconds are reported too (serial: the client
+   thread's; cluster: the busier worker process's): a shared machine moves
+   them far less than wall time, and their ratio is the speed-up to expect
+   when each worker has a core to itself.
 
     python bench/bench_matching.py [--size 512] [--repeat 3]
 
@@ -97,9 +101,14 @@ def bench_dask(size: int, repeat: int) -> dict:
     params.detect.cell = 16
     params.detect.per_cell = 1
     params.match.search = 16.0
-    out = {}
-    t_serial = best_of(lambda: out.__setitem__("s", find_tiepoints(imgs, cams, params=params, scheduler="sync")),
-                       repeat)
+    out: dict = {}
+
+    def serial() -> tuple[float, float]:
+        t, c = time.perf_counter(), time.thread_time()
+        out["s"] = find_tiepoints(imgs, cams, params=params, scheduler="sync")
+        return time.perf_counter() - t, time.thread_time() - c
+
+    res: dict = {}
     for label, procs in (("processes", True), ("threads", False)):
         # Worker processes without distributed's MALLOC_TRIM_THRESHOLD_ (see lunarmap.matching.parallel):
         # with it, the matching tasks ran 2-7x slower in the workers than in the client.
@@ -107,14 +116,31 @@ def bench_dask(size: int, repeat: int) -> dict:
                 LocalCluster(n_workers=2, threads_per_worker=1, processes=procs, dashboard_address=":0") as cluster, \
                 Client(cluster) as client:
             find_tiepoints(imgs, cams, params=params, scheduler=client)  # warm-up: imports on the workers
-            out[f"t_{label}"] = best_of(lambda: out.__setitem__("c", find_tiepoints(imgs, cams, params=params,
-                                                                                    scheduler=client)), repeat)
-    t_cluster = out["t_processes"]
+            # Serial and cluster runs alternate, so a change of machine load hits both alike.
+            ts, tc, cs, cw = [], [], [], []
+            for _ in range(repeat):
+                t, c = serial()
+                ts.append(t)
+                cs.append(c)
+                w0 = client.run(time.process_time) if procs else None
+                t = time.perf_counter()
+                out["c"] = find_tiepoints(imgs, cams, params=params, scheduler=client)
+                tc.append(time.perf_counter() - t)
+                if procs:
+                    w1 = client.run(time.process_time)
+                    cw.append(max(w1[w] - w0[w] for w in w1))
+            res[label] = dict(serial=min(ts), cluster=min(tc), cpu_serial=min(cs), cpu_busier_worker=cw)
+    P, T = res["processes"], res["threads"]
     same = bool(out["s"].sizes == out["c"].sizes and np.allclose(out["s"].line, out["c"].line))
     return dict(images=4, pairs=6, image_size=size, observations=int(out["s"].sizes["observation"]),
-                tie_points=int(out["s"].point_id.max() + 1), serial_s=t_serial, cluster_2_workers_s=t_cluster,
-                speedup_2_workers=t_serial / t_cluster, cluster_2_workers_in_process_s=out["t_threads"],
-                speedup_2_workers_in_process=t_serial / out["t_threads"], cluster_result_equals_serial=same)
+                tie_points=int(out["s"].point_id.max() + 1), serial_s=P["serial"], cluster_2_workers_s=P["cluster"],
+                speedup_2_workers=P["serial"] / P["cluster"], serial_s_threads_run=T["serial"],
+                cluster_2_workers_in_process_s=T["cluster"], speedup_2_workers_in_process=T["serial"] / T["cluster"],
+                # CPU seconds move far less than wall time on a shared machine: serial CPU / the busier
+                # worker's CPU is the speed-up to expect when each worker process has a core to itself.
+                cpu_serial_s=P["cpu_serial"], cpu_busier_worker_s=P["cpu_busier_worker"],
+                speedup_if_cores_free=P["cpu_serial"] / min(P["cpu_busier_worker"]),
+                cluster_result_equals_serial=same)
 
 
 def main() -> None:
@@ -135,7 +161,9 @@ def main() -> None:
         print(f"tie points, 4 images x {args.size}^2, 6 pairs: serial {D['serial_s']:.2f} s, 2-worker LocalCluster "
               f"{D['cluster_2_workers_s']:.2f} s -> speed-up x{D['speedup_2_workers']:.2f} "
               f"(same result: {D['cluster_result_equals_serial']}); in-process 2-worker cluster "
-              f"{D['cluster_2_workers_in_process_s']:.2f} s -> x{D['speedup_2_workers_in_process']:.2f}")
+              f"{D['cluster_2_workers_in_process_s']:.2f} s -> x{D['speedup_2_workers_in_process']:.2f}; CPU: serial "
+              f"{D['cpu_serial_s']:.2f} s, busier worker {min(D['cpu_busier_worker_s']):.2f} s -> "
+              f"x{D['speedup_if_cores_free']:.2f} with free cores")
     r["load_avg_end"] = os.getloadavg()
     print(json.dumps(r))
 

@@ -11,12 +11,19 @@ the same run, because the machine is shared and timings drift:
 * ``many``: 20 images (NAC-like, varied latitude, longitude and yaw flip),
   ``fit_rpc`` one after the other in this process vs ``fit_many`` on a
   ``distributed.LocalCluster`` with 2 worker processes x 1 thread (cluster
-  start-up reported separately, not in the speed-up). Both paths run BLAS
+  start-up reported separately, not in the speed-up). Serial and cluster
+  runs alternate ``--many-repeat`` times; the speed-up is the median of the
+  per-pair ratios. The serial runs fit cache-less copies of the cameras, as
+  the workers receive them. CPU seconds are reported too (serial: the fitting
+  thread's; cluster: each worker process's, client's apart): on a shared
+  machine they move far less than wall time, and ``speedup_if_cores_free`` =
+  serial CPU / the busier worker's CPU is the speed-up to expect when each
+  worker has a core to itself. Both paths run BLAS
   single-threaded (``fit_rpc`` does internally; workers get
   ``lunarmap.rpc.parallel.WORKER_ENVIRON``, which also drops distributed's
   ``MALLOC_TRIM_THRESHOLD_`` -- measured to double a fit's CPU time).
 
-    python bench/bench_rpc.py [--images 20] [--repeat 5] [--no-cluster]
+    python bench/bench_rpc.py [--images 20] [--repeat 5] [--many-repeat 3] [--no-cluster]
 """
 
 from __future__ import annotations
@@ -72,14 +79,25 @@ def bench_single(repeat: int) -> dict:
     }
 
 
-def bench_many(n_images: int, use_cluster: bool) -> dict:
+def _cold_copies(cams: list) -> list:
+    """Bit-exact copies without the cameras' caches, as a worker receives them (fair serial baseline)."""
+    import pickle
+
+    from lunarmap.rpc.parallel import ExactCamera
+
+    return [pickle.loads(pickle.dumps(ExactCamera(c))).camera for c in cams]
+
+
+def bench_many(n_images: int, use_cluster: bool, repeat: int = 3) -> dict:
     rng = np.random.default_rng(1)
     cams = [nac_camera(lat=float(rng.uniform(-60, 60)), lon=float(rng.uniform(-180, 180)), flip=bool(i % 2))
             for i in range(n_images)]
-    t = time.perf_counter()
-    serial = [fit_rpc(c) for c in cams]
-    t_serial = time.perf_counter() - t
-    out = {"images": n_images, "serial_s": round(t_serial, 3),
+    copies = _cold_copies(cams)
+    t, c0 = time.perf_counter(), time.thread_time()
+    serial = [fit_rpc(c) for c in copies]
+    t_serial = [time.perf_counter() - t]
+    cpu_serial = [time.thread_time() - c0]  # this thread's CPU: the client's other threads are not the fit
+    out = {"images": n_images, "serial_s": round(t_serial[0], 3),
            "worst_check_rms_px": max(f.check.rms for f in serial),
            "worst_check_max_px": max(f.check.max for f in serial)}
     if not use_cluster:
@@ -90,17 +108,43 @@ def bench_many(n_images: int, use_cluster: bool) -> dict:
     from lunarmap.rpc.parallel import WORKER_ENVIRON
 
     t = time.perf_counter()
-    with dask.config.set({"distributed.nanny.pre-spawn-environ": WORKER_ENVIRON}), distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                  silence_logs=40) as cluster, distributed.Client(cluster) as client:
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": WORKER_ENVIRON}), \
+            distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                     silence_logs=40) as cluster, distributed.Client(cluster) as client:
         t_start = time.perf_counter() - t
         fit_many(cams[:2], client=client)  # warm the workers' imports
-        t = time.perf_counter()
-        par = fit_many(cams, client=client)
-        t_par = time.perf_counter() - t
+        # Serial and cluster runs alternate, so a change of machine load hits both alike.
+        t_par: list[float] = []
+        cpu_workers, cpu_client = [], []
+        for k in range(repeat):
+            if k:
+                copies = _cold_copies(cams)
+                t, c0 = time.perf_counter(), time.thread_time()
+                for c in copies:
+                    fit_rpc(c)
+                t_serial.append(time.perf_counter() - t)
+                cpu_serial.append(time.thread_time() - c0)
+            w0 = client.run(time.process_time)
+            t, c0 = time.perf_counter(), time.process_time()
+            par = fit_many(cams, client=client)
+            t_par.append(time.perf_counter() - t)
+            cpu_client.append(time.process_time() - c0)
+            w1 = client.run(time.process_time)
+            cpu_workers.append(sorted(w1[w] - w0[w] for w in w1))
     same = all(np.array_equal(p.model.coefficients, s.model.coefficients) and p.check == s.check
                for p, s in zip(par, serial))
+    ratios = [a / b for a, b in zip(t_serial, t_par)]
     out.update({"cluster": "LocalCluster 2 processes x 1 thread", "cluster_start_s": round(t_start, 3),
-                "dask_s": round(t_par, 3), "speedup": round(t_serial / t_par, 2), "identical_to_serial": same,
+                "serial_s": round(statistics.median(t_serial), 3), "dask_s": round(statistics.median(t_par), 3),
+                "speedup": round(statistics.median(ratios), 2), "speedup_runs": [round(r, 2) for r in ratios],
+                "speedup_best_of": round(min(t_serial) / min(t_par), 2), "identical_to_serial": same,
+                # CPU seconds, which a busy machine inflates far less than wall time: the speed-up to expect
+                # when each worker gets a core of its own is serial CPU / the busier worker's CPU.
+                "cpu_serial_s": round(statistics.median(cpu_serial), 3),
+                "cpu_workers_s": [[round(x, 3) for x in w] for w in cpu_workers],
+                "cpu_client_during_cluster_s": [round(x, 3) for x in cpu_client],
+                "speedup_if_cores_free": round(statistics.median(cpu_serial) / statistics.median(
+                    w[-1] for w in cpu_workers), 2),
                 "target_speedup": 1.6})
     return out
 
@@ -109,13 +153,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--images", type=int, default=20)
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--many-repeat", type=int, default=3, help="alternating serial/cluster runs of the 20 images")
     ap.add_argument("--no-cluster", action="store_true")
     args = ap.parse_args()
     result = {
         "bench": "rpc", "host": platform.node(), "cpus": os.cpu_count(),
         "load_avg_start": os.getloadavg(),
         "single": bench_single(args.repeat),
-        "many": bench_many(args.images, not args.no_cluster),
+        "many": bench_many(args.images, not args.no_cluster, args.many_repeat),
         "load_avg_end": os.getloadavg(),
     }
     print(json.dumps(result))
