@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from ..errors import InvalidInputError
 from ..rpc.parallel import WORKER_ENVIRON as _RPC_WORKER_ENVIRON
 from .interest import InterestPoints
-from .pairs import as_array
+from .pairs import PairMatches, as_array
 from .tiepoints import (DetectParams, TiePointParams, assemble_tiepoints, detect_tile, match_pair, merge_points,
                          tile_windows)
 
@@ -55,6 +55,12 @@ def _detect_in(image: NDArray, core: tuple[int, int, int, int], padded: tuple[in
                params: DetectParams, saturation: float | None, label: str) -> InterestPoints:
     """:func:`detect_tile` on the padded window of a whole image (the window is cut on the worker)."""
     return detect_tile(image[padded[0]:padded[1], padded[2]:padded[3]], core, padded, params, saturation, label)
+
+
+def _assemble(index_pairs: Sequence[tuple[int, int]], matched: Sequence[PairMatches], names: Sequence[str],
+              track_tol: float) -> xr.Dataset:
+    """:func:`assemble_tiepoints` of the pair results in graph order."""
+    return assemble_tiepoints([(i, j, m) for (i, j), m in zip(index_pairs, matched)], names, track_tol)
 
 
 def tiepoint_graph(images: Mapping[str, Any], sensors: Mapping[str, Any],
@@ -101,7 +107,8 @@ def tiepoint_graph(images: Mapping[str, Any], sensors: Mapping[str, Any],
     h = dask.delayed(height, traverse=False) if isinstance(height, xr.DataArray) else height
     matched = []
     for a, b in pairs:
-        m = dask.delayed(match_pair, pure=True)(arrays[a], arrays[b], sens[a], sens[b], points[a], h, params,
-                                                f"{a} -> {b}")
-        matched.append(dask.delayed(tuple)([index[a], index[b], m]))
-    return dask.delayed(assemble_tiepoints, pure=True)(matched, names, params.track_tol)
+        matched.append(dask.delayed(match_pair, pure=True)(arrays[a], arrays[b], sens[a], sens[b], points[a], h,
+                                                           params, f"{a} -> {b}"))
+    # Image indices travel as plain values (a delayed tuple per pair would be one more task each).
+    return dask.delayed(_assemble, pure=True)([(index[a], index[b]) for a, b in pairs], matched, names,
+                                              params.track_tol)
