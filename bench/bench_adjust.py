@@ -130,7 +130,7 @@ def main(argv=None):
                   f"{statistics.median(r['iterations'] for r in rs)} | "
                   f"{max(r.get('peak_rss_mb', 0) for r in rs):.0f} | "
                   f"{'' if 'lunarmap' not in med else round(solve_s / med['lunarmap'], 2)} | "
-                  f"{statistics.median(prec) if prec else ''} | "
+                  f"{round(statistics.median(prec), 2) if prec else ''} | "
                   f"{round(statistics.median(prec) / solve_s, 2) if prec else ''} |")
 
 

@@ -164,3 +164,21 @@ def test_compiled_and_numpy_solves_agree():
     b = solve(pb, SolverOptions(ftol=1e-10, compiled=False))
     assert a.cost == pytest.approx(b.cost, rel=1e-8)
     np.testing.assert_allclose(a.points, b.points, atol=1e-3)
+
+
+def test_numpy_fallbacks_without_numba(monkeypatch):
+    """Without numba every kernel has a numpy path: same adjustment, dense precision."""
+    from lunarmap.adjust import collinearity, schur
+
+    pb = simulate_frame_block(orbits=2, per_orbit=5, points=200, seed=5).problem
+    ref = solve(pb, SolverOptions(ftol=1e-10))
+    monkeypatch.setattr(schur, "numba", None)
+    monkeypatch.setattr(schur, "HAVE_COMPILED", False)
+    monkeypatch.setattr(collinearity, "_frame_kernel", None)
+    res = solve(pb, SolverOptions(ftol=1e-10))
+    assert not res.structure.compiled
+    assert res.cost == pytest.approx(ref.cost, rel=1e-8)
+    pr = res.precision()
+    assert pr.method == "dense-lapack"
+    np.testing.assert_allclose(pr.pt_cov, ref.precision().pt_cov, rtol=1e-5,
+                               atol=1e-8 * np.abs(pr.pt_cov).max())

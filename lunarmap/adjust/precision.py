@@ -35,7 +35,6 @@ from numpy.typing import NDArray
 
 from ..errors import DatumDefectError
 from .factor import Factorizer
-from .schur import inv_sym3
 
 try:
     import numba

@@ -27,7 +27,7 @@ accepted step and may return new per-observation weight factors
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
