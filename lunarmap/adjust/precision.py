@@ -48,7 +48,7 @@ MAX_SCALED_VARIANCE = 1e13
 #: smallest/largest eigenvalue ratio of a point's normal block below which the point is undetermined
 UNDETERMINED_POINT_RATIO = 1e-10
 #: reduced systems up to this size also keep the dense ``Q_red``
-DENSE_Q_LIMIT = 3000
+DENSE_Q_LIMIT = 1500
 
 
 @dataclass
