@@ -88,11 +88,48 @@ def _tiny_problem(priors):
     return BundleProblem(model, params, X, ImageObservations(ci, pi, xy, 1.0), priors)
 
 
-def test_correlated_priors_are_refused_until_the_solver_supports_them():
-    pr = PointPriors([0], [[0.1, 0.2, 0.0]], cov=np.array([[[1.0, 0.5, 0], [0.5, 1.0, 0], [0, 0, 1.0]]]))
+def test_correlated_priors_are_weighted_by_their_inverse_covariance():
+    """Oracle: scipy least_squares on residuals whitened with an independent Cholesky of each covariance."""
+    from scipy.optimize import least_squares
+
+    from lunarmap.adjust import SolverOptions, solve
+    from lunarmap.adjust.simulate_block import simulate_frame_block
+    from lunarmap.adjust.solver import AdjustmentState, _image_residuals
+
+    sb = simulate_frame_block(orbits=2, per_orbit=4, points=80, seed=7)
+    base = sb.problem
+    k = base.priors.idx.size
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(k, 3, 3)) * 40.0
+    cov = A @ np.swapaxes(A, 1, 2) + np.eye(3) * 100.0        # strongly correlated, metres^2
+    pr = PointPriors(base.priors.idx, base.priors.xyz, cov=cov)
     assert pr.correlated
-    with pytest.raises(AdjustmentInputError, match="correlated"):
-        _tiny_problem(pr)
+    pb = BundleProblem(base.model, base.cam_params, base.points, base.obs, pr, terms=base.terms)
+    res = solve(pb, SolverOptions(ftol=1e-10))
+    nav = sb.navigation
+    nc, ne = pb.n_images * 6, nav.n_extra
+    Linv = np.linalg.inv(np.linalg.cholesky(cov))              # whitening independent of sqrt_weight()
+
+    def fun(x):
+        st = AdjustmentState(x[:nc].reshape(-1, 6), x[nc + ne:].reshape(-1, 3), x[nc:nc + ne], np.ones(pb.obs.n))
+        rc = np.einsum("kij,kj->ki", Linv, st.points[pr.idx] - pr.xyz)
+        return np.concatenate([_image_residuals(pb, st).ravel(), rc.ravel(),
+                               nav.linearize(st.cam_params, st.extra)[0]])
+
+    x1 = np.concatenate([res.cam_params.ravel(), res.extra, res.points.ravel()])
+    assert 0.5 * np.sum(fun(x1) ** 2) == pytest.approx(res.cost, rel=1e-9)
+    ls = least_squares(fun, x1, method="trf", x_scale="jac", ftol=1e-14, xtol=1e-14, gtol=1e-12, max_nfev=5)
+    assert ls.cost <= res.cost + 1e-9 and res.cost - ls.cost < 0.01
+    sig = np.sqrt(np.diagonal(res.precision().pt_cov, axis1=1, axis2=2))
+    assert np.max(np.abs(res.points - ls.x[nc + ne:].reshape(-1, 3)) / sig) < 0.1
+    # the correlated weights matter: the per-axis-sigma problem has a different minimum
+    diag = PointPriors(pr.idx, pr.xyz, sigma=np.sqrt(np.diagonal(cov, axis1=1, axis2=2)))
+    res_d = solve(BundleProblem(base.model, base.cam_params, base.points, base.obs, diag, terms=base.terms),
+                  SolverOptions(ftol=1e-10))
+    assert np.max(np.abs(res_d.points[pr.idx] - res.points[pr.idx])) > 1e-3
+
+
+def test_diagonal_covariance_is_per_axis_sigma():
     # a diagonal covariance is exactly per-axis sigma
     pb = _tiny_problem(PointPriors([0, 1], [[0.1, 0.2, 0.0], [-0.2, 0.1, 0.0]],
                                    cov=np.array([np.diag([4.0, 9.0, 1.0]), np.zeros((3, 3))])))

@@ -41,6 +41,9 @@ from .schur import SchurStructure, inv_sym3, normal_blocks, whiten
 
 __all__ = ["SolverOptions", "AdjustmentState", "Linearization", "solve", "linearize", "evaluate_cost"]
 
+# Control points may carry full 3 x 3 covariances (BundleProblem checks this flag).
+SUPPORTS_PRIOR_COVARIANCE = True
+
 
 @dataclass
 class SolverOptions:
@@ -99,14 +102,18 @@ class Linearization:
 
 
 def _prior_terms(problem: BundleProblem, points: NDArray):
-    """Whitened control-point residuals (k, 3) and diagonal weights (k, 3) for weighted control points."""
+    """Weighted control points: indices (k,), whitened residuals ``W (X - xyz)`` (k, 3) and ``W`` (k, 3, 3).
+
+    ``W^T W`` is the inverse covariance of each control point (diagonal for per-axis sigma, full
+    for correlated priors such as lat/lon/h control converted to body-fixed XYZ).
+    """
     pr = problem.priors
     if pr is None:
         return None
     m = ~pr.fixed
     idx = pr.idx[m]
-    wsqrt = 1.0 / pr.sigma[m]
-    return idx, (points[idx] - pr.xyz[m]) * wsqrt, wsqrt
+    W = pr.sqrt_weight()[m]
+    return idx, np.einsum("kij,kj->ki", W, points[idx] - pr.xyz[m]), W
 
 
 def _image_residuals(problem: BundleProblem, state: AdjustmentState) -> NDArray:
@@ -190,9 +197,9 @@ def linearize(problem: BundleProblem, state: AdjustmentState, structure: SchurSt
     gc = gc.ravel()
     pt = _prior_terms(problem, state.points)
     if pt is not None:
-        idx, rr, wsq = pt
-        V[idx[:, None], [0, 1, 2], [0, 1, 2]] += wsq * wsq
-        gp[idx] += rr * wsq
+        idx, rr, Wp = pt
+        np.add.at(V, idx, np.einsum("kji,kjl->kil", Wp, Wp))
+        np.add.at(gp, idx, np.einsum("kji,kj->ki", Wp, rr))
         cost += float(np.sum(rr * rr))
     # fixed points: identity placeholder keeps V invertible; they do not move
     V[fixed_pt] = np.eye(3)
