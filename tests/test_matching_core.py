@@ -10,6 +10,7 @@ from lunarmap.matching import (
     BlankTileWarning,
     Observations,
     RansacParams,
+    bicubic,
     bicubic_with_gradient,
     bilinear,
     build_pyramid,
@@ -57,6 +58,10 @@ def test_bilinear_and_bicubic_reproduce_polynomials() -> None:
     # CSM edges: pixel centres 0.5 .. H - 0.5 exist, beyond is NaN
     assert np.isnan(bilinear(lin, 0.4, 5.0)) and np.isfinite(bilinear(lin, 0.5, 5.0))
     assert np.isnan(bicubic_with_gradient(img, 1.4, 5.0)[0])
+    # values alone: the same numbers, the same NaN border, scalars stay 0-d
+    assert np.array_equal(bicubic(img, lq, sq), v)
+    assert np.isnan(bicubic(img, 1.4, 5.0)) and np.ndim(bicubic(img, 5.0, 5.0)) == 0
+    assert bicubic(img, 5.0, 5.0) == pytest.approx(f(5.0, 5.0), abs=1e-10)
 
 
 def test_pyramid_keeps_csm_coordinates() -> None:

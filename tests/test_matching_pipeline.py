@@ -141,6 +141,27 @@ def test_dask_threads_equal_serial_and_netcdf_round_trip(three_images, tmp_path)
     assert os.listdir(tmp_path) == ["tp.nc"]
 
 
+def test_in_memory_images_enter_the_graph_once(three_images) -> None:
+    """Tiles are cut on the worker: the graph holds each image's pixels once, not once per tile too."""
+    from lunarmap.matching import tiepoint_graph
+
+    import io
+    import pickle
+
+    cams, imgs, params = three_images
+    graph = dict(tiepoint_graph(imgs, cams, params=params).__dask_graph__())
+    rasters = []
+
+    class Spy(pickle.Pickler):  # sees every object the graph ships, wherever it is nested
+        def persistent_id(self, obj):
+            if isinstance(obj, np.ndarray) and obj.dtype == np.float32 and obj.ndim == 2:  # pixels, not sensors
+                rasters.append(obj.shape)
+            return None
+
+    Spy(io.BytesIO(), protocol=pickle.HIGHEST_PROTOCOL).dump(graph)
+    assert sorted(rasters) == sorted(v.shape for v in imgs.values())
+
+
 def test_failed_write_leaves_nothing_behind(three_images, tmp_path, monkeypatch) -> None:
     cams, imgs, params = three_images
     ds = find_tiepoints({k: imgs[k] for k in list(imgs)[:2]}, cams, params=params)
