@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
+from ..atomic import atomic_write
 from .collinearity import FrameModel
 from ..errors import AdjustmentInputError
 from .problem import BundleProblem, ImageObservations, PointPriors
@@ -88,21 +88,16 @@ def read_bal(path: str | os.PathLike, with_meta: bool = True) -> BALData:
 
 def write_bal(path: str | os.PathLike, data: BALData) -> None:
     """Write a BAL text problem atomically (temporary file in the same folder, then rename)."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
+    def write(tmp: Path) -> None:
+        with open(tmp, "w") as fh:
             fh.write(f"{data.cameras.shape[0]} {data.points.shape[0]} {data.obs.shape[0]}\n")
             rows = np.empty(data.obs.shape[0], dtype=[("c", "i8"), ("p", "i8"), ("x", "f8"), ("y", "f8")])
             rows["c"], rows["p"], rows["x"], rows["y"] = data.cam_idx, data.pt_idx, data.obs[:, 0], data.obs[:, 1]
             np.savetxt(fh, rows, fmt=["%d", "%d", "%.6f", "%.6f"])
             np.savetxt(fh, data.cameras.reshape(-1, 1), fmt="%.17g")
             np.savetxt(fh, data.points.reshape(-1, 1), fmt="%.17g")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+
+    atomic_write(path, write)
 
 
 def bal_to_problem(data: BALData, control: NDArray | None = None, control_sigma: float = 0.0,

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from .rotation import left_jacobian, rotate, rotvec_to_matrix, skew
+from .rotation import left_jacobian, rotate, rotvec_to_matrix
 
 try:  # optional: one fused pass per observation instead of ~20 numpy temporaries of (n, 3, 3)
     import numba

@@ -165,7 +165,6 @@ class NavigationObservations:
         """Whitened residuals (value - observed - offset - s drift) / sigma and their Jacobian (linear model)."""
         x = np.concatenate([cam_params.ravel(), extra])
         rows = self._rows
-        img = rows // self.p
         r = self._J @ x
         r[: rows.size] -= self.obs.ravel()[rows] * self.w.ravel()[rows]
         return r, self._J

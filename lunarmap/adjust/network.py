@@ -29,9 +29,7 @@ same folder, then ``os.replace``): a failed write leaves no partial file.
 
 from __future__ import annotations
 
-import contextlib
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -42,6 +40,7 @@ from numpy.typing import NDArray
 
 from ..camera.geodesy import xyz_to_lonlat_height
 from ..camera.shape import MOON_RADIUS
+from ..atomic import atomic_write
 from ..errors import NetworkFormatError
 from .problem import BundleProblem, ImageObservations, PointPriors
 
@@ -254,16 +253,7 @@ def write_network(net: ControlNetwork, path: str | os.PathLike) -> Path:
     if not folder.is_dir():
         raise NetworkFormatError(f"cannot write {path}: folder {folder} does not exist")
     ds = network_to_dataset(net)   # built first: an invalid network never creates a temporary file
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-    os.close(fd)
-    try:
-        ds.to_netcdf(tmp, engine="netcdf4")
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_write(path, lambda tmp: ds.to_netcdf(tmp, engine="netcdf4"))
 
 
 def read_network(path: str | os.PathLike) -> ControlNetwork:

@@ -22,7 +22,6 @@ it with any scheduler (``"sync"`` for serial, a ``distributed.Client``...).
 from __future__ import annotations
 
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -31,6 +30,7 @@ import numpy as np
 import xarray as xr
 from numpy.typing import NDArray
 
+from ..atomic import atomic_write
 from ..errors import InvalidInputError
 from .interest import InterestPoints, foerstner
 from .pairs import STATUS, MatchParams, PairMatches, match_points
@@ -214,16 +214,7 @@ def write_tiepoints(ds: xr.Dataset, path: str | os.PathLike) -> Path:
         raise InvalidInputError("write_tiepoints expects the Dataset returned by find_tiepoints")
     if not path.parent.is_dir():
         raise InvalidInputError(f"cannot write {path}: folder {path.parent} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        ds.to_netcdf(tmp, engine="netcdf4")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_write(path, lambda tmp: ds.to_netcdf(tmp, engine="netcdf4"))
 
 
 def read_tiepoints(path: str | os.PathLike) -> xr.Dataset:

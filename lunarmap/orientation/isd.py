@@ -17,13 +17,14 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from ..atomic import atomic_write
 from ..errors import InvalidInputError
 from .exterior import ExteriorOrientation
 from .rotation import matrix_to_quat, quat_to_matrix
@@ -245,14 +246,8 @@ def _jsonable(obj: Any) -> Any:
 
 def write_json_atomic(data: Any, path: str | os.PathLike[str]) -> None:
     """Write JSON to ``path`` via a temporary file in the same folder, then rename."""
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=folder)
-    try:
-        with os.fdopen(fd, "w") as fh:
+    def write(tmp: Path) -> None:
+        with open(tmp, "w") as fh:
             json.dump(data, fh, indent=2)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+
+    atomic_write(path, write)

@@ -27,16 +27,14 @@ comment line and reads it back when present.
 
 from __future__ import annotations
 
-import contextlib
 import os
-import tempfile
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import xarray as xr
 
 from ..camera.shape import MOON_RADIUS
+from ..atomic import atomic_write
 from ..errors import RpcFormatError
 from .model import RationalFunctionModel
 
@@ -54,21 +52,6 @@ _RADIUS_COMMENT = "# lunarmap reference radius (m):"
 _SIZE_COMMENT = "# lunarmap image size (lines samples):"
 
 
-def _atomic_write(path: str | os.PathLike[str], write: Callable[[str], None]) -> Path:
-    """Call ``write(tmp)`` on a temporary file beside ``path``, then rename it over ``path``."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-    return path
-
-
 def write_netcdf(model: RationalFunctionModel, path: str | os.PathLike[str]) -> Path:
     """Write :meth:`RationalFunctionModel.to_dataset` to a netCDF file, atomically.
 
@@ -78,7 +61,7 @@ def write_netcdf(model: RationalFunctionModel, path: str | os.PathLike[str]) -> 
         The file written.
     """
     ds = model.to_dataset()
-    return _atomic_write(path, lambda tmp: ds.to_netcdf(tmp, engine="netcdf4"))
+    return atomic_write(path, lambda tmp: ds.to_netcdf(tmp, engine="netcdf4"))
 
 
 def read_netcdf(path: str | os.PathLike[str]) -> RationalFunctionModel:
@@ -124,7 +107,7 @@ def write_rpc_txt(model: RationalFunctionModel, path: str | os.PathLike[str]) ->
         with open(tmp, "w", encoding="ascii") as fh:
             fh.write(text)
 
-    return _atomic_write(path, write)
+    return atomic_write(path, write)
 
 
 def read_rpc_txt(path: str | os.PathLike[str], radius: float | None = None, n_lines: int | None = None,

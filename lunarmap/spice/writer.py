@@ -30,7 +30,6 @@ import contextlib
 import math
 import os
 import re
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping, Sequence, Union
@@ -39,6 +38,7 @@ import numpy as np
 import spiceypy
 from numpy.typing import ArrayLike, NDArray
 
+from ..atomic import atomic_path
 from ..errors import InvalidInputError
 from .pool import SPICE_LOCK, spice_errors
 
@@ -302,38 +302,6 @@ def _check_comment(text: str) -> str:
         if any(not (" " <= c <= "~") for c in line):
             raise InvalidInputError(f"comment line {line!r} contains non-printable or non-ASCII characters")
     return text
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
-    """Yield a fresh temporary file name next to ``path``; rename it onto ``path`` on success.
-
-    The temporary name does not exist when yielded (SPICE refuses to open an
-    existing file for writing). If the block raises, the temporary file is
-    removed and ``path`` is left untouched.
-
-    Parameters
-    ----------
-    path : path-like
-        Final file name; its folder must exist.
-    """
-    final = Path(path)
-    folder = final.parent if str(final.parent) else Path(".")
-    if not folder.is_dir():
-        raise InvalidInputError(f"cannot write {final}: folder {folder} does not exist")
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=folder)
-    os.close(fd)
-    tmp = Path(tmp_name)
-    tmp.unlink()
-    try:
-        yield tmp
-        if not tmp.is_file():
-            raise InvalidInputError(f"writing {final}: nothing was written")
-        os.replace(tmp, final)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise
 
 
 def write_text_kernel(path: str | os.PathLike[str], kind: str,
