@@ -141,25 +141,46 @@ def test_dask_threads_equal_serial_and_netcdf_round_trip(three_images, tmp_path)
     assert os.listdir(tmp_path) == ["tp.nc"]
 
 
+def test_distributed_client_scatters_pixels_and_equals_serial(three_images) -> None:
+    """With a distributed Client the in-memory pixels are scattered, not embedded in the graph."""
+    distributed = pytest.importorskip("distributed")
+    from lunarmap.matching import tiepoint_graph
+
+    cams, imgs, params = three_images
+    a = find_tiepoints(imgs, cams, params=params, scheduler="sync")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=":0") as cluster, distributed.Client(cluster) as client:
+        pixels = {n: client.scatter(np.asarray(v.data), hash=True) for n, v in imgs.items()}
+        assert _shipped_rasters(tiepoint_graph(imgs, cams, params=params, pixels=pixels)) == []
+        assert len(_shipped_rasters(tiepoint_graph(imgs, cams, params=params))) == len(imgs)  # the spy sees them
+        b = find_tiepoints(imgs, cams, params=params, scheduler=client)
+    xr.testing.assert_allclose(a, b)
+
+
 def test_in_memory_images_enter_the_graph_once(three_images) -> None:
     """Tiles are cut on the worker: the graph holds each image's pixels once, not once per tile too."""
     from lunarmap.matching import tiepoint_graph
 
+    cams, imgs, params = three_images
+    rasters = _shipped_rasters(tiepoint_graph(imgs, cams, params=params))
+    assert sorted(rasters) == sorted(v.shape for v in imgs.values())
+
+
+def _shipped_rasters(delayed) -> list:
+    """Shapes of the 2-D float32 arrays (pixels, not sensors) that pickling the graph ships."""
     import io
     import pickle
 
-    cams, imgs, params = three_images
-    graph = dict(tiepoint_graph(imgs, cams, params=params).__dask_graph__())
     rasters = []
 
     class Spy(pickle.Pickler):  # sees every object the graph ships, wherever it is nested
         def persistent_id(self, obj):
-            if isinstance(obj, np.ndarray) and obj.dtype == np.float32 and obj.ndim == 2:  # pixels, not sensors
+            if isinstance(obj, np.ndarray) and obj.dtype == np.float32 and obj.ndim == 2:
                 rasters.append(obj.shape)
             return None
 
-    Spy(io.BytesIO(), protocol=pickle.HIGHEST_PROTOCOL).dump(graph)
-    assert sorted(rasters) == sorted(v.shape for v in imgs.values())
+    Spy(io.BytesIO(), protocol=pickle.HIGHEST_PROTOCOL).dump(dict(delayed.__dask_graph__()))
+    return rasters
 
 
 def test_failed_write_leaves_nothing_behind(three_images, tmp_path, monkeypatch) -> None:

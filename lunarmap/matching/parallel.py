@@ -65,8 +65,13 @@ def _assemble(index_pairs: Sequence[tuple[int, int]], matched: Sequence[PairMatc
 
 def tiepoint_graph(images: Mapping[str, Any], sensors: Mapping[str, Any],
                    pairs: Sequence[tuple[str, str]] | None = None, height: Any = 0.0,
-                   params: TiePointParams | None = None) -> Delayed:
-    """Delayed tie-point table of a set of images; see :func:`~lunarmap.matching.find_tiepoints`."""
+                   params: TiePointParams | None = None, pixels: Mapping[str, Any] | None = None) -> Delayed:
+    """Delayed tie-point table of a set of images; see :func:`~lunarmap.matching.find_tiepoints`.
+
+    ``pixels`` optionally maps image names to pixel arrays already placed on a cluster
+    (``distributed.Future`` from ``Client.scatter``); those images are not embedded in the graph.
+    """
+    pixels = pixels or {}
     params = params or TiePointParams()
     names = list(images)
     if len(names) < 2:
@@ -87,13 +92,18 @@ def tiepoint_graph(images: Mapping[str, Any], sensors: Mapping[str, Any],
         data = img.data if isinstance(img, xr.DataArray) else img
         _shape(data)
         # In-memory pixels become one graph node (see the module notes); dask arrays stay lazy.
-        raw[n] = data if is_dask_collection(data) else dask.delayed(np.asarray(data), name=f"pixels-{tokenize(data)}")
+        if n in pixels:
+            raw[n] = pixels[n]
+        elif is_dask_collection(data):
+            raw[n] = data
+        else:
+            raw[n] = dask.delayed(np.asarray(data), name=f"pixels-{tokenize(data)}")
         arrays[n] = dask.delayed(as_array, pure=True)(raw[n], n, sat)
     halo = params.detect.border + params.detect.window + params.detect.nms
     points: dict[str, Any] = {}
     for n in sorted({a for a, _ in pairs}):
         data = raw[n]
-        lazy = not isinstance(data, Delayed)
+        lazy = is_dask_collection(data) and not isinstance(data, Delayed)
         tiles = []
         for core, pad in tile_windows(_shape(images[n]), params.detect.tile, halo):
             if lazy:

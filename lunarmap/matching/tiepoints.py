@@ -201,9 +201,17 @@ def find_tiepoints(images: Mapping[str, xr.DataArray | NDArray], sensors: Mappin
     """
     from .parallel import tiepoint_graph
 
-    graph = tiepoint_graph(images, sensors, pairs=pairs, height=height, params=params)
-    if hasattr(scheduler, "compute") and hasattr(scheduler, "gather"):  # a distributed.Client
+    if hasattr(scheduler, "compute") and hasattr(scheduler, "scatter"):  # a distributed.Client
+        # In-memory pixels go to the workers once, by scatter, instead of inside the task graph
+        # (which the scheduler would receive, store and forward: distributed warns past 10 MB).
+        pixels = {}
+        for n, img in images.items():
+            data = img.data if isinstance(img, xr.DataArray) else img
+            if isinstance(data, np.ndarray):
+                pixels[n] = scheduler.scatter(data, hash=True)
+        graph = tiepoint_graph(images, sensors, pairs=pairs, height=height, params=params, pixels=pixels)
         return scheduler.compute(graph).result()
+    graph = tiepoint_graph(images, sensors, pairs=pairs, height=height, params=params)
     return graph.compute(scheduler=scheduler)
 
 
