@@ -41,3 +41,12 @@ def test_demo_prints_ground_points(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "sim_nac_85n" in text and "sim_frame_a" in text and "nan" not in text.lower()
     assert (tmp_path / "demo" / "sim_nac_equator.isd.json").is_file()
+    # every image got an RPC that reads back; the adjustment line reports sigma0 near 1
+    from lunarmap.rpc import read_rpc_txt
+
+    for name in ("sim_nac_equator", "sim_frame_a"):
+        assert read_rpc_txt(tmp_path / "demo" / f"{name}_RPC.TXT").to_dataset() is not None
+    rms = [float(line.split("RMS ")[1].split(" px")[0]) for line in text.splitlines() if "cubic RFM" in line]
+    assert len(rms) == 5 and max(rms) <= 0.01
+    sigma0 = float(text.split("sigma0 ")[1].split(",")[0])
+    assert abs(sigma0 - 1.0) < 0.05
