@@ -19,13 +19,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ..camera.geodesy import lonlat_height_to_xyz, xyz_to_lonlat_height
+from ..camera.geodesy import xyz_to_lonlat_height
 from ..errors import AdjustmentInputError
 from .intersection import intersect_points
 from .linescan_poly import LineScanPolyModel
 from .navigation import NavigationObservations
-from .problem import BundleProblem, ImageObservations, PointPriors
-from .simulate_rfm_block import _camera, _terrain, local_enu
+from .problem import BundleProblem, ImageObservations
+from .simulate_rfm_block import _camera, _control_and_check, _observe, _site_points
 
 __all__ = ["SimulatedLineScanBlock", "simulate_linescan_block"]
 
@@ -71,35 +71,9 @@ def simulate_linescan_block(rolls=(-15.0, 0.0, 15.0), degree: int = 1, n_points:
         true_params[i, 3:6] = -dpos
         true_params[i, 6:9] = model._t_half[i] * ddrift
 
-    half = 0.35 * min(n_lines, n_samples) * 0.5 * altitude * 0.007 / 699.62 / 1737.4e3 * 180 / np.pi
-    m = 4 * n_points
-    lon = lon0 + rng.uniform(-half, half, m) / np.cos(np.radians(lat0))
-    lat = lat0 + rng.uniform(-half, half, m) * n_lines / min(n_lines, n_samples)
-    X = lonlat_height_to_xyz(lon, lat, _terrain(lon, lat, site, relief))
-    ci, pi, xy = [], [], []
-    for i, cam in enumerate(true_cams):
-        li, sa = cam.ground_to_image(X, on_miss="nan")
-        ok = np.isfinite(li) & np.isfinite(sa)
-        ci.append(np.full(ok.sum(), i))
-        pi.append(np.nonzero(ok)[0])
-        xy.append(np.column_stack([li[ok], sa[ok]]))
-    ci, pi, xy = np.concatenate(ci), np.concatenate(pi), np.concatenate(xy)
-    keep = np.nonzero(np.bincount(pi, minlength=m) >= 2)[0][:n_points]
-    remap = -np.ones(m, np.int64)
-    remap[keep] = np.arange(keep.size)
-    sel = remap[pi] >= 0
-    cam_idx, pt_idx = ci[sel], remap[pi[sel]]
-    xy = xy[sel] + rng.normal(0.0, sigma_px, (sel.sum(), 2))
-    X = X[keep]
-
-    enu = local_enu(X.mean(axis=0))
-    e, nn = (X - X.mean(axis=0)) @ enu[0], (X - X.mean(axis=0)) @ enu[1]
-    picks = [np.argmin(e + nn), np.argmax(e + nn), np.argmin(e - nn), np.argmax(e - nn)][:n_control]
-    control = np.unique(np.array(picks, np.int64))
-    rest = np.setdiff1d(np.arange(X.shape[0]), control)
-    check = np.sort(rng.choice(rest, size=min(n_check, rest.size), replace=False))
-    priors = PointPriors(control, X[control] + rng.normal(0.0, control_sigma, (control.size, 3)),
-                         np.full((control.size, 3), control_sigma)) if control.size else None
+    X = _site_points(rng, site, 0.35, n_points, n_lines, n_samples, altitude, relief)
+    cam_idx, pt_idx, xy, X = _observe(true_cams, X, n_points, sigma_px, rng)
+    control, check, priors = _control_and_check(X, n_control, n_check, control_sigma, rng, with_centre=False)
 
     # a-priori sigmas of the coefficients: those the errors were drawn with (higher terms: small)
     n_img = len(rolls)

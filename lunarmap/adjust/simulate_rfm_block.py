@@ -136,40 +136,12 @@ def simulate_rfm_block(n_images: int = 7, rolls=None, n_points: int = 60, n_cont
         rfms.append(fit_rpc(nav, (-4 * relief - 100.0, 4 * relief + 100.0), check=False).model)
 
     # points: uniform in the inner footprint, kept if seen by >= 2 images (most are seen by all)
-    half = 0.4 * min(n_lines, n_samples) * 0.5 * altitude * 0.007 / 699.62 / 1737.4e3 * 180 / np.pi
-    m = 4 * n_points
-    lon = lon0 + rng.uniform(-half, half, m) / np.cos(np.radians(lat0))
-    lat = lat0 + rng.uniform(-half, half, m) * n_lines / min(n_lines, n_samples)
-    X = lonlat_height_to_xyz(lon, lat, _terrain(lon, lat, site, relief))
-    ci, pi, xy = [], [], []
-    for i, cam in enumerate(cams_true):
-        li, sa = cam.ground_to_image(X, on_miss="nan")
-        ok = np.isfinite(li) & np.isfinite(sa)
-        ci.append(np.full(ok.sum(), i))
-        pi.append(np.nonzero(ok)[0])
-        xy.append(np.column_stack([li[ok], sa[ok]]))
-    ci, pi, xy = np.concatenate(ci), np.concatenate(pi), np.concatenate(xy)
-    cnt = np.bincount(pi, minlength=m)
-    keep = np.nonzero(cnt >= 2)[0][:n_points]
-    if keep.size < n_points:
-        warn(f"only {keep.size} of {n_points} points are seen by 2 or more images", SimulationWarning)
-    remap = -np.ones(m, np.int64)
-    remap[keep] = np.arange(keep.size)
-    sel = remap[pi] >= 0
-    cam_idx, pt_idx = ci[sel], remap[pi[sel]]
-    xy = xy[sel] + rng.normal(0.0, sigma_px, (sel.sum(), 2))
-    X = X[keep]
-
+    X = _site_points(rng, site, 0.4, n_points, n_lines, n_samples, altitude, relief)
+    cam_idx, pt_idx, xy, X = _observe(cams_true, X, n_points, sigma_px, rng)
+    if X.shape[0] < n_points:
+        warn(f"only {X.shape[0]} of {n_points} points are seen by 2 or more images", SimulationWarning)
     # control: the points nearest the four corners (and centre) of the cloud; check: random others
-    enu = local_enu(X.mean(axis=0))
-    e, nn = (X - X.mean(axis=0)) @ enu[0], (X - X.mean(axis=0)) @ enu[1]
-    picks = [np.argmin(e + nn), np.argmax(e + nn), np.argmin(e - nn), np.argmax(e - nn),
-             np.argmin(np.hypot(e, nn))][:n_control]
-    control = np.unique(np.array(picks, np.int64))
-    rest = np.setdiff1d(np.arange(X.shape[0]), control)
-    check = np.sort(rng.choice(rest, size=min(n_check, rest.size), replace=False))
-    priors = PointPriors(control, X[control] + rng.normal(0.0, control_sigma, (control.size, 3)),
-                         np.full((control.size, 3), control_sigma)) if control.size else None
+    control, check, priors = _control_and_check(X, n_control, n_check, control_sigma, rng, with_centre=True)
 
     model = AffineRFMModel(rfms, origin=origin)
     params0 = model.initial_params()
@@ -196,3 +168,51 @@ def check_point_errors(block: SimulatedRfmBlock, points: NDArray, pt_cov: NDArra
         out["expected"] = np.sqrt(np.mean(var, axis=0))
         out["z"] = d / np.sqrt(var)
     return out
+
+
+def _site_points(rng: np.random.Generator, site: tuple[float, float], frac: float, n_points: int, n_lines: int,
+                 n_samples: int, altitude: float, relief: float) -> NDArray:
+    """``4 n_points`` candidate ground points (metres, body-fixed) uniform in the central ``frac`` of the footprint."""
+    lon0, lat0 = site
+    half = frac * min(n_lines, n_samples) * 0.5 * altitude * 0.007 / 699.62 / 1737.4e3 * 180 / np.pi
+    m = 4 * n_points
+    lon = lon0 + rng.uniform(-half, half, m) / np.cos(np.radians(lat0))
+    lat = lat0 + rng.uniform(-half, half, m) * n_lines / min(n_lines, n_samples)
+    return lonlat_height_to_xyz(lon, lat, _terrain(lon, lat, site, relief))
+
+
+def _observe(cams, X: NDArray, n_points: int, sigma_px: float, rng: np.random.Generator):
+    """Noisy image observations of the first ``n_points`` candidates seen by >= 2 cameras.
+
+    Returns ``cam_idx, pt_idx, xy`` (pixels, with Gaussian noise ``sigma_px``) and the kept points.
+    """
+    m = X.shape[0]
+    ci, pi, xy = [], [], []
+    for i, cam in enumerate(cams):
+        li, sa = cam.ground_to_image(X, on_miss="nan")
+        ok = np.isfinite(li) & np.isfinite(sa)
+        ci.append(np.full(ok.sum(), i))
+        pi.append(np.nonzero(ok)[0])
+        xy.append(np.column_stack([li[ok], sa[ok]]))
+    ci, pi, xy = np.concatenate(ci), np.concatenate(pi), np.concatenate(xy)
+    keep = np.nonzero(np.bincount(pi, minlength=m) >= 2)[0][:n_points]
+    remap = -np.ones(m, np.int64)
+    remap[keep] = np.arange(keep.size)
+    sel = remap[pi] >= 0
+    return ci[sel], remap[pi[sel]], xy[sel] + rng.normal(0.0, sigma_px, (sel.sum(), 2)), X[keep]
+
+
+def _control_and_check(X: NDArray, n_control: int, n_check: int, control_sigma: float, rng: np.random.Generator,
+                       with_centre: bool):
+    """Control points nearest the cloud's corners (and centre), random check points, and the control priors."""
+    enu = local_enu(X.mean(axis=0))
+    e, nn = (X - X.mean(axis=0)) @ enu[0], (X - X.mean(axis=0)) @ enu[1]
+    picks = [np.argmin(e + nn), np.argmax(e + nn), np.argmin(e - nn), np.argmax(e - nn)]
+    if with_centre:
+        picks.append(np.argmin(np.hypot(e, nn)))
+    control = np.unique(np.array(picks[:n_control], np.int64))
+    rest = np.setdiff1d(np.arange(X.shape[0]), control)
+    check = np.sort(rng.choice(rest, size=min(n_check, rest.size), replace=False))
+    priors = PointPriors(control, X[control] + rng.normal(0.0, control_sigma, (control.size, 3)),
+                         np.full((control.size, 3), control_sigma)) if control.size else None
+    return control, check, priors
