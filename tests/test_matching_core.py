@@ -198,6 +198,32 @@ def test_ransac_removes_mismatches_keeps_relief_parallax() -> None:
     assert removed >= 0.99 and kept >= 0.95, (removed, kept)
 
 
+def test_ransac_adapts_to_strong_relief_parallax_and_tolerates_missing_epipolar() -> None:
+    """High convergence: relief parallax along the epipolar line far beyond ``tol_along``.
+
+    True matches must stay (their cross-epipolar residual is tiny); mismatches are still
+    removed; a few points without an epipolar direction (NaN) must not switch the test to
+    the isotropic 1-pixel tolerance for the whole pair.
+    """
+    rng = np.random.default_rng(11)
+    n = 600
+    p1 = rng.uniform(0, 500, (n, 2))
+    e = np.tile([0.1, 1.0], (n, 1))           # ~1 px per metre, as at 30 deg convergence
+    heights = rng.normal(0, 3.0, n)            # relief off the plane -> parallax sigma 3 px along e
+    resid = np.array([0.3, -0.8]) + heights[:, None] * e + rng.normal(0, 0.05, (n, 2))
+    bad = rng.random(n) < 0.2
+    ang = rng.uniform(0, 2 * np.pi, bad.sum())
+    mag = rng.uniform(4.0, 40.0, bad.sum())
+    resid[bad] += np.column_stack([np.cos(ang), np.sin(ang)]) * mag[:, None]
+    e[rng.choice(n, 5, replace=False)] = np.nan
+    inl = ransac_local_affine(p1[:, 0], p1[:, 1], resid[:, 0], resid[:, 1], e)
+    removed, kept = np.mean(~inl[bad]), np.mean(inl[~bad])
+    assert removed >= 0.95 and kept >= 0.97, (removed, kept)
+    # the fixed tolerance (the old behaviour) would drop most true matches here
+    fixed = ransac_local_affine(p1[:, 0], p1[:, 1], resid[:, 0], resid[:, 1], e, RansacParams(along_mad=0.0))
+    assert np.mean(fixed[~bad]) < 0.8
+
+
 def test_tracks_join_observations_and_drop_conflicts() -> None:
     obs = Observations(
         image=np.array([0, 1, 0, 2, 1, 2, 0, 1, 0, 1]), node=np.array([0, 10, 0, 11, 12, 13, 5, 20, 5, 21]),

@@ -44,6 +44,11 @@ class RansacParams:
         Inlier tolerances across and along the epipolar direction, image-2 pixels.
     hypotheses : int
         Random minimal samples per tile.
+    along_mad : float
+        The along-epipolar tolerance widens to ``along_mad`` robust standard deviations
+        (1.4826 MAD) of the along-epipolar residuals of the matches that pass across it:
+        relief away from the tile's plane moves true matches along the epipolar line by its
+        parallax, which grows with the convergence angle (0 keeps ``tol_along`` fixed).
     min_points : int
         Tiles with fewer matches use the whole pair's model.
     seed : int
@@ -53,6 +58,7 @@ class RansacParams:
     tile: float = 256.0
     tol_cross: float = 1.0
     tol_along: float = 3.0
+    along_mad: float = 3.5
     hypotheses: int = 200
     min_points: int = 8
     seed: int = 0
@@ -94,14 +100,32 @@ def _fit(p1: Array, r: Array, e_hat: Array | None, prm: RansacParams, rng: np.ra
     pred = np.einsum("ni,kij->knj", x, coef)
     size = _residual_norms(r[None] - pred, e_hat, prm.tol_cross, prm.tol_along)  # (k', n)
     count = np.sum(size < 1.0, axis=1)
-    inl = size[np.argmax(count)] < 1.0
+    best = int(np.argmax(count))
+    inl = size[best] < 1.0
+    tol_along = prm.tol_along
+    if e_hat is not None and prm.along_mad > 0:
+        tol_along = _along_tolerance(r - pred[best], e_hat, prm)
     # Refit to the inliers (twice: the refit can admit or reject a few borderline matches).
     for _ in range(2):
         if inl.sum() < 3:
             break
         c, *_ = np.linalg.lstsq(x[inl], r[inl], rcond=None)
-        inl = _residual_norms((r - x @ c)[None], e_hat, prm.tol_cross, prm.tol_along)[0] < 1.0
+        res = r - x @ c
+        if e_hat is not None and prm.along_mad > 0:
+            tol_along = _along_tolerance(res, e_hat, prm)
+        inl = _residual_norms(res[None], e_hat, prm.tol_cross, tol_along)[0] < 1.0
     return inl
+
+
+def _along_tolerance(res: Array, e_hat: Array, prm: RansacParams) -> float:
+    """Along-epipolar tolerance (pixels) from the spread of the matches that pass across the epipolar line."""
+    along = res[:, 0] * e_hat[:, 0] + res[:, 1] * e_hat[:, 1]
+    cross = -res[:, 0] * e_hat[:, 1] + res[:, 1] * e_hat[:, 0]
+    a = along[np.abs(cross) < prm.tol_cross]
+    if a.size < 3:
+        return prm.tol_along
+    mad = 1.4826 * np.median(np.abs(a - np.median(a)))
+    return max(prm.tol_along, prm.along_mad * mad)
 
 
 def ransac_local_affine(line1: ArrayLike, sample1: ArrayLike, dline: ArrayLike, dsample: ArrayLike,
@@ -137,11 +161,18 @@ def ransac_local_affine(line1: ArrayLike, sample1: ArrayLike, dline: ArrayLike, 
     if epipolar is not None:
         e = np.asarray(epipolar, float).reshape(n, 2)
         norm = np.hypot(e[:, 0], e[:, 1])
+        finite = np.isfinite(norm)
         # Where relief causes no parallax (zero base) there is no epipolar direction: isotropic.
-        med = np.median(norm) if n else 0.0
-        if n and np.isfinite(med) and med > 0:
-            e_hat = np.where((norm > 1e-3 * med)[:, None], e / np.where(norm > 0, norm, 1.0)[:, None],
-                             np.array([1.0, 0.0]))
+        med = np.median(norm[finite]) if finite.any() else 0.0
+        if med > 0:
+            valid = finite & (norm > 1e-3 * med)
+            e_hat = np.empty((n, 2))
+            e_hat[valid] = e[valid] / norm[valid, None]
+            # A point whose epipolar derivative could not be computed (its image-2 position
+            # at the perturbed height left the image) takes the mean direction of the others:
+            # the epipolar direction varies slowly over an image.
+            mean = e_hat[valid].mean(axis=0)
+            e_hat[~valid] = mean / np.hypot(*mean)
     rng = np.random.default_rng(prm.seed)
     inliers = np.zeros(n, dtype=bool)
     if n == 0:
