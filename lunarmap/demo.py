@@ -77,5 +77,5 @@ def _adjustment_demo() -> None:
     print(f"\nblock adjustment: simulated Clementine-like block, {pb.n_images} images in 4 orbits, "
           f"{pb.n_points} points, {pb.obs.n} image observations, navigation with per-orbit offset and drift")
     print(f"  sigma0 {res.sigma0:.3f}, image residual RMS {res.rms_px():.3f} px, {res.iterations} iterations")
-    print(f"  point errors vs truth (datum from the navigation data alone): median {np.median(err):.1f} m; normalised by their posterior sigma: "
+    print(f"  point errors vs truth (datum: navigation data and {0 if pb.priors is None else pb.priors.idx.size} control points): median {np.median(err):.1f} m; normalised by their posterior sigma: "
           f"RMS {np.sqrt(np.mean(z ** 2)):.2f} (1 if the precision is right) ({time.perf_counter() - t:.1f} s)")
