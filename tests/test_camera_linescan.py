@@ -251,3 +251,20 @@ def test_bracketed_fallback_gives_the_same_answer(monkeypatch) -> None:
     monkeypatch.setattr(ls, "_MAX_FAST", 0)              # no fast-path step converges
     l2, s2 = cam.ground_to_image(xyz)
     assert np.hypot(l2 - line, s2 - sample).max() <= 1e-6
+
+
+def test_pickle_leaves_the_eo_table_behind_and_answers_the_same() -> None:
+    import pickle
+
+    cam = _camera()
+    rng = np.random.default_rng(8)
+    line, sample = rng.uniform(0, NAC_LINES, 500), rng.uniform(0, NAC_SAMPLES, 500)
+    xyz = cam.image_to_ground(line, sample)
+    before = cam.ground_to_image(xyz)
+    assert cam._table is not None
+    data = pickle.dumps(cam)
+    assert len(data) < 2_000_000                        # the per-line table alone is > 10 MB
+    back = pickle.loads(data)
+    assert back._table is None and cam._table is not None   # the original keeps its cache
+    after = back.ground_to_image(xyz)
+    assert np.abs(after[0] - before[0]).max() <= 1e-9 and np.abs(after[1] - before[1]).max() <= 1e-9
