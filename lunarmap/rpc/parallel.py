@@ -57,26 +57,11 @@ def _exact_reduce(obj: Any) -> tuple[Any, ...]:
     return _restore, (type(obj), dict(vars(obj)))
 
 
-#: Camera attributes that are caches, rebuilt on demand from the rest of the state (deterministically,
-#: so a worker's fit stays bit-identical): a fitted NAC camera's per-line EO table ``_table`` is
-#: 16.5 MB of its 16.7 MB pickle (0.05 s to rebuild), and shipping 20 of them made the 2-worker
-#: cluster 2.6x slower than serial.
-_CACHE_ATTRS = ("_table", "_dtm_cache")
-
-
-def _camera_reduce(obj: Any) -> tuple[Any, ...]:
-    state = dict(vars(obj))
-    for k in _CACHE_ATTRS:
-        if k in state:
-            state[k] = None
-    return _restore, (type(obj), state)
-
-
 class ExactCamera:
     """A camera that pickles bit-exact (its ExteriorOrientation state is copied, not rebuilt).
 
-    ``ExactCamera(camera).camera`` is the camera; its caches (``_table``,
-    ``_dtm_cache``) are left behind and rebuilt where needed. On unpickling, the
+    ``ExactCamera(camera).camera`` is the camera; its caches stay behind (the cameras'
+    own ``__getstate__``) and are rebuilt where needed. On unpickling, the
     exterior orientation's arrays and interpolants are restored as they
     were instead of being re-normalised (see the module notes).
     """
@@ -91,11 +76,6 @@ class ExactCamera:
         pickler = pickle.Pickler(buf, protocol=pickle.HIGHEST_PROTOCOL)
         pickler.dispatch_table = copyreg.dispatch_table.copy()
         pickler.dispatch_table[ExteriorOrientation] = _exact_reduce
-        cls = type(self.camera)
-        plain = cls.__reduce_ex__ is object.__reduce_ex__ and cls.__reduce__ is object.__reduce__ \
-            and getattr(cls, "__getstate__", None) is getattr(object, "__getstate__", None)
-        if plain and hasattr(self.camera, "__dict__"):  # a class that pickles itself is left to do so
-            pickler.dispatch_table[cls] = _camera_reduce
         pickler.dump(self.camera)
         return _load_exact, (buf.getvalue(),)
 
