@@ -227,9 +227,7 @@ class LineScanCamera(_CameraModel):
             # The per-line table equals the EO interpolation to < 1e-6 px
             # (see _table_error_px) and costs one gather instead of two spline
             # evaluations and a quaternion-to-matrix conversion.
-            i = np.minimum(np.floor(s).astype(np.intp), tab["n"] - 2)
-            node = tab["pairs"][i.ravel()]
-            row = node[:, :12] + (s.ravel() - i.ravel())[:, None] * node[:, 12:]
+            row = self._table_rows(tab, line.ravel())
             rt = row[:, 3:].reshape(-1, 3, 3)          # R^T: rows are the sensor axes in body-fixed
             look = np.einsum("nji,nj->ni", rt, look_s.reshape(-1, 3)).reshape(look_s.shape)
             pos = row[:, :3].reshape(look_s.shape)
@@ -313,12 +311,16 @@ class LineScanCamera(_CameraModel):
         v[:, 2] = pr[:, 6] * d[:, 0] + pr[:, 7] * d[:, 1] + pr[:, 8] * d[:, 2]
         return self._project(v)
 
-    def _residual_table(self, tab: dict, g: Array, line: Array) -> tuple[Array, Array, Array]:
+    @staticmethod
+    def _table_rows(tab: dict, line: Array) -> Array:
+        """Linearly interpolated table rows ``[P (3), R^T row-major (9)]`` at image lines ``(n,)``."""
         s = (line - tab["line0"]) / tab["step"]
         i = np.clip(np.floor(s).astype(np.intp), 0, tab["n"] - 2)
-        u = (s - i)[:, None]
         node = tab["pairs"][i]
-        row = node[:, :12] + u * node[:, 12:]
+        return node[:, :12] + (s - i)[:, None] * node[:, 12:]
+
+    def _residual_table(self, tab: dict, g: Array, line: Array) -> tuple[Array, Array, Array]:
+        row = self._table_rows(tab, line)
         return self._residual_from(row[:, :3], row[:, 3:], g)
 
     def _residual_exact(self, g: Array, line: Array) -> tuple[Array, Array, Array]:
@@ -365,8 +367,7 @@ class LineScanCamera(_CameraModel):
             idx, lin, slope = idx[keep], lin[keep], slope[keep]
             if idx.size == 0:
                 return line, sample, ok
-        gi = g[idx]
-        return self._refine(tab, g, gi, idx, lin, slope, line, sample, ok)
+        return self._refine(tab, g, idx, lin, slope, line, sample, ok)
 
     def _fast_secant(self, tab: dict, gi: Array, x_est: Array, lin: Array, slope: Array) -> NDArray[np.bool_]:
         """Secant from an interpolated start; fills ``lin``/``slope`` where it converged (returned mask)."""
@@ -477,9 +478,10 @@ class LineScanCamera(_CameraModel):
         out_line[sel], out_slope[sel], found[sel] = xl, slope, True
         return out_line, out_slope, found
 
-    def _refine(self, tab: dict, g: Array, gi: Array, idx: NDArray[np.intp], lin: Array, slope: Array,
+    def _refine(self, tab: dict, g: Array, idx: NDArray[np.intp], lin: Array, slope: Array,
                 line: Array, sample: Array, ok: NDArray[np.bool_]) -> tuple[Array, Array, NDArray[np.bool_]]:
         """Exact Newton corrections of table-based lines with the EO's own interpolation; fills the outputs."""
+        gi = g[idx]
         smp, val = np.full(idx.size, np.nan), np.zeros(idx.size, dtype=bool)
         act = np.arange(idx.size)
         if tab["exact_px"] <= _TABLE_EXACT_PX:
