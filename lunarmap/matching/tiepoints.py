@@ -220,8 +220,6 @@ def write_tiepoints(ds: xr.Dataset, path: str | os.PathLike) -> Path:
     path = Path(path)
     if not isinstance(ds, xr.Dataset) or "point_id" not in ds:
         raise InvalidInputError("write_tiepoints expects the Dataset returned by find_tiepoints")
-    if not path.parent.is_dir():
-        raise InvalidInputError(f"cannot write {path}: folder {path.parent} does not exist")
     return atomic_write(path, lambda tmp: ds.to_netcdf(tmp, engine="netcdf4"))
 
 
