@@ -62,20 +62,14 @@ def run_demo(output: str | os.PathLike[str] = "demo_output") -> dict[str, np.nda
 
 def _adjustment_demo() -> None:
     """Adjust a simulated Clementine-like block and compare with its truth."""
-    from .adjust import SolverOptions, solve
-    from .adjust.simulate_block import simulate_frame_block
+    from .adjust.acceptance import navigation_block_figures
 
     t = time.perf_counter()
-    sb = simulate_frame_block(orbits=4, per_orbit=12, points=1500, seed=1)
-    pb = sb.problem
-    res = solve(pb, SolverOptions(ftol=1e-9))
-    prec = res.precision()
-    sig = np.sqrt(np.diagonal(prec.pt_cov, axis1=1, axis2=2))
-    free = sig.min(axis=1) > 0
-    z = (res.points - sb.true_points)[free] / sig[free]
-    err = np.linalg.norm(res.points - sb.true_points, axis=1)[free]
-    print(f"\nblock adjustment: simulated Clementine-like block, {pb.n_images} images in 4 orbits, "
-          f"{pb.n_points} points, {pb.obs.n} image observations, navigation with per-orbit offset and drift")
-    print(f"  sigma0 {res.sigma0:.3f}, image residual RMS {res.rms_px():.3f} px, {res.iterations} iterations")
-    print(f"  point errors vs truth (datum: navigation data and {0 if pb.priors is None else pb.priors.idx.size} control points): median {np.median(err):.1f} m; normalised by their posterior sigma: "
-          f"RMS {np.sqrt(np.mean(z ** 2)):.2f} (1 if the precision is right) ({time.perf_counter() - t:.1f} s)")
+    f = navigation_block_figures(seed=1)
+    b = f["_block"]
+    print(f"\nblock adjustment: simulated Clementine-like block, {b['images']} images in 4 orbits, "
+          f"{b['points']} points, {b['observations']} image observations, navigation with per-orbit offset and drift")
+    print(f"  sigma0 {f['sigma0']:.3f}, image residual RMS {b['rms_px']:.3f} px, {b['iterations']} iterations")
+    print(f"  point errors vs truth (datum: navigation data and {b['control_points']} control points): median "
+          f"{b['point_error_median_m']:.1f} m; normalised by their posterior sigma: RMS {f['points_z_rms']:.2f} "
+          f"(1 if the precision is right) ({time.perf_counter() - t:.1f} s)")

@@ -55,7 +55,11 @@ def navigation_block_figures(seed: int = 1, **kw) -> dict:
             "images_z_rms_marginal": float(np.sqrt(np.mean(z_c ** 2))), "images_z_rms_whitened": joint,
             "offdrift_z_rms": float(np.sqrt(np.mean(z_x ** 2))), "offdrift_max_abs_z": float(np.max(np.abs(z_x))),
             "offdrift_within_2sigma": float(np.mean(np.abs(z_x) < 2)), "_z": (z_c.ravel(), z_x),
-            "_posterior_over_prior": (off_ratio, dr_ratio)}
+            "_posterior_over_prior": (off_ratio, dr_ratio),
+            "_block": {"images": sb.problem.n_images, "points": sb.problem.n_points, "observations": sb.problem.obs.n,
+                       "control_points": 0 if sb.problem.priors is None else int(sb.problem.priors.idx.size),
+                       "iterations": res.iterations, "rms_px": res.rms_px(),
+                       "point_error_median_m": float(np.median(np.linalg.norm(e_p, axis=1)))}}
 
 
 def _main() -> None:
