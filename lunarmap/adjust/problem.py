@@ -167,12 +167,6 @@ class ReducedTerm(Protocol):
     def extra_free(self) -> NDArray[np.bool_]: ...
 
 
-def _solver_takes_correlated_priors() -> bool:
-    from . import solver
-
-    return bool(getattr(solver, "SUPPORTS_PRIOR_COVARIANCE", False))
-
-
 @dataclass
 class BundleProblem:
     """A complete adjustment problem; validated on construction."""
@@ -226,12 +220,6 @@ class BundleProblem:
             raise AdjustmentInputError("image observation sigma must be > 0 pixels")
         if self.priors is not None:
             self.priors._validate(n_pt)
-            if self.priors.correlated and not _solver_takes_correlated_priors():
-                # the solver weights control points per axis; dropping the correlations would be silently wrong
-                raise AdjustmentInputError(
-                    "control points with correlated (full) covariance are not supported by the solver yet; "
-                    "give per-axis sigma (e.g. lonlat_priors(..., frame='xyz-diagonal')) or see the solver's "
-                    "SUPPORTS_PRIOR_COVARIANCE")
         if self.cam_param_free is None:
             self.cam_param_free = np.ones((n_img, p), dtype=bool)
         self.cam_param_free = np.asarray(self.cam_param_free, dtype=bool).reshape(n_img, p)

@@ -41,9 +41,6 @@ from .schur import SchurStructure, inv_sym3, normal_blocks, whiten
 
 __all__ = ["SolverOptions", "AdjustmentState", "Linearization", "solve", "linearize", "evaluate_cost"]
 
-# Control points may carry full 3 x 3 covariances (BundleProblem checks this flag).
-SUPPORTS_PRIOR_COVARIANCE = True
-
 
 @dataclass
 class SolverOptions:
