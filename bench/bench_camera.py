@@ -24,7 +24,7 @@ from typing import Any, Callable
 import numpy as np
 
 from lunarmap.camera import LineScanCamera, Shape
-from lunarmap.testing.cameras import NAC_LINE_TIME, NAC_LINES, NAC_SAMPLES, nac_like_interior, polar_orbit_eo
+from lunarmap.simulate.orbits import NAC_LINE_TIME, NAC_LINES, NAC_SAMPLES, nac_like_interior, polar_orbit_eo
 
 
 def build_camera(workers: int | None = None) -> LineScanCamera:

@@ -39,7 +39,7 @@ import numpy as np
 
 from lunarmap.camera import LineScanCamera, Shape
 from lunarmap.rpc import fit_many, fit_rpc
-from lunarmap.testing.cameras import NAC_LINE_TIME, NAC_LINES, nac_like_interior, polar_orbit_eo
+from lunarmap.simulate.orbits import NAC_LINE_TIME, NAC_LINES, nac_like_interior, polar_orbit_eo
 
 
 def nac_camera(lat: float = 0.0, lon: float = 30.0, flip: bool = False) -> LineScanCamera:

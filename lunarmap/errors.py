@@ -22,6 +22,7 @@ __all__ = [
     "InvalidInputError",
     "GeometryError",
     "NoIntersectionError",
+    "DistortionPartialsError",
     "ConvergenceError",
     "LunarmapWarning",
     "warn",
@@ -92,6 +93,10 @@ class GeometryError(LunarmapError):
 
 class NoIntersectionError(GeometryError):
     """A look ray misses the body (or the DTM) altogether."""
+
+
+class DistortionPartialsError(InvalidInputError):
+    """A distortion model has no analytic partial derivatives, so it cannot be adjusted."""
 
 
 class ConvergenceError(GeometryError):

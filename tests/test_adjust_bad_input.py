@@ -7,14 +7,14 @@ import pytest
 
 from lunarmap.adjust import BundleProblem, ImageObservations, PointPriors, SolverOptions, solve
 from lunarmap.adjust.navigation import NavigationObservations
-from lunarmap.adjust.simulate_block import simulate_frame_block
+from blockhelp import frame_case
 from lunarmap.errors import (AdjustmentInputError, DatumDefectError, InsufficientObservationsError,
                              UnobservedParameterError)
 
 
 @pytest.fixture(scope="module")
 def sb():
-    return simulate_frame_block(orbits=2, per_orbit=5, points=120, n_control=4, seed=4)
+    return frame_case(orbits=2, per_orbit=5, points=120, n_control=4, seed=4)
 
 
 def _rebuild(sb, **changes):
@@ -48,9 +48,9 @@ def test_too_few_observations(sb):
     remap = np.zeros(pb.n_points, np.int64)
     remap[both] = np.arange(both.size)
     obs = ImageObservations(o.cam_idx[m], remap[o.pt_idx[m]], o.xy[m], 0.3)
-    from lunarmap.adjust import FrameModel
+    from lunarmap.adjust import SensorImageModel
 
-    model = FrameModel(pb.model.R0[:2], pb.model.f[:2])
+    model = SensorImageModel(pb.model.sensors[:2])
     with pytest.raises(InsufficientObservationsError, match="12 scalar observations for 21 unknowns"):
         BundleProblem(model, pb.cam_params[:2], pb.points[both], obs)
     with pytest.raises(AdjustmentInputError, match="2 rows but the image model describes 10 images"):

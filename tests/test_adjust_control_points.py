@@ -93,10 +93,10 @@ def test_correlated_priors_are_weighted_by_their_inverse_covariance():
     from scipy.optimize import least_squares
 
     from lunarmap.adjust import SolverOptions, solve
-    from lunarmap.adjust.simulate_block import simulate_frame_block
-    from lunarmap.adjust.solver import AdjustmentState, _image_residuals
+    from blockhelp import frame_case
+    from lunarmap.adjust.normal import AdjustmentState, image_residuals as _image_residuals
 
-    sb = simulate_frame_block(orbits=2, per_orbit=4, points=80, seed=7)
+    sb = frame_case(orbits=2, per_orbit=4, points=80, seed=7)
     base = sb.problem
     k = base.priors.idx.size
     rng = np.random.default_rng(3)

@@ -7,11 +7,11 @@ import pytest
 
 from lunarmap.adjust import UnobservedParameterError
 from lunarmap.adjust.intersection import intersect_points
-from lunarmap.adjust.simulate_block import simulate_frame_block
+from blockhelp import frame_case
 
 
 def test_intersection_errors_match_covariance():
-    sb = simulate_frame_block(orbits=3, per_orbit=8, points=3000, seed=11)
+    sb = frame_case(orbits=3, per_orbit=8, points=3000, seed=11)
     pb = sb.problem
     o = pb.obs
     res = intersect_points(pb.model, sb.true_params, o.cam_idx, o.pt_idx, o.xy, 0.3, n_pt=pb.n_points)
@@ -26,7 +26,7 @@ def test_intersection_errors_match_covariance():
 
 
 def test_intersection_needs_two_rays():
-    sb = simulate_frame_block(orbits=2, per_orbit=3, points=50, seed=2)
+    sb = frame_case(orbits=2, per_orbit=3, points=50, seed=2)
     o = sb.problem.obs
     keep = np.ones(o.n, bool)
     keep[np.nonzero(o.pt_idx == 0)[0][1:]] = False

@@ -19,7 +19,7 @@ import pytest
 
 from lunarmap.adjust import SolverOptions, solve
 from lunarmap.adjust.navigation import NavigationObservations
-from lunarmap.adjust.simulate_block import simulate_frame_block
+from blockhelp import frame_case
 from lunarmap.errors import AdjustmentInputError
 
 POSITION_ONLY = dict(offset_mode=("fixed",) * 3 + ("free",) * 3, drift_mode=("fixed",) * 3 + ("free",) * 3,
@@ -62,7 +62,7 @@ def _stats(sb, res, prec):
 
 @pytest.mark.slow
 def test_block_with_navigation_recovers_truth_consistently_with_sigma():
-    sb = simulate_frame_block(orbits=4, per_orbit=12, points=1500, seed=1)
+    sb = frame_case(orbits=4, per_orbit=12, points=1500, seed=1)
     pb = sb.problem
     res = solve(pb, SolverOptions(ftol=1e-9))
     assert res.converged
@@ -91,7 +91,7 @@ def test_monte_carlo_normalised_errors(modes):
     # is 0.92 (3 sd); P(any of ~290 beyond 4 sigma) ~ 2 %.
     zi, zx, s0 = [], [], []
     for seed in range(12):
-        sb = simulate_frame_block(orbits=4, per_orbit=12, points=1500, seed=seed, **modes)
+        sb = frame_case(orbits=4, per_orbit=12, points=1500, seed=seed, **modes)
         res = solve(sb.problem, SolverOptions(ftol=1e-9))
         assert res.converged
         img_joint, img_marg, z_x, _ = _stats(sb, res, res.precision())
@@ -112,12 +112,12 @@ def test_free_attitude_and_position_offsets_are_not_separable():
     # why "free" for all six offsets and drifts is not the default: the data leave the attitude /
     # position split to perspective, posterior sigma of the positions is ~100x the navigation noise and
     # the estimator leaves the linear regime (errors of several sigma against the linearised covariance)
-    sb = simulate_frame_block(orbits=2, per_orbit=8, points=400, seed=3, offset_mode="free", drift_mode="free")
+    sb = frame_case(orbits=2, per_orbit=8, points=400, seed=3, offset_mode="free", drift_mode="free")
     res = solve(sb.problem, SolverOptions(ftol=1e-9))
     prec = res.precision()
     s_pos = np.sqrt(np.diagonal(prec.cam_cov, axis1=1, axis2=2))[:, 3:6]
     assert np.median(s_pos[:, 1:]) > 30 * 10.0     # east/north position sigma vs 10 m navigation noise
-    ok = simulate_frame_block(orbits=2, per_orbit=8, points=400, seed=3)
+    ok = frame_case(orbits=2, per_orbit=8, points=400, seed=3)
     res = solve(ok.problem, SolverOptions(ftol=1e-9))
     s_pos = np.sqrt(np.diagonal(res.precision().cam_cov, axis1=1, axis2=2))[:, 3:6]
     assert np.max(s_pos) < 100.0                   # bounded by the offset sigma (100 m)

@@ -10,13 +10,13 @@ import xarray as xr
 from lunarmap.adjust import SolverOptions, solve
 from lunarmap.adjust.network import (ControlNetwork, network_from_dataset, network_to_dataset, read_network,
                                      write_network)
-from lunarmap.adjust.simulate_rfm_block import simulate_rfm_block
+from blockhelp import rfm_case
 from lunarmap.errors import NetworkFormatError
 
 
 @pytest.fixture(scope="module")
 def block():
-    return simulate_rfm_block(n_points=30, n_control=4, n_check=8, seed=2)
+    return rfm_case(n_points=30, n_control=4, n_check=8, seed=2)
 
 
 def _network(sb):

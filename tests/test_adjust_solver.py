@@ -9,13 +9,13 @@ from scipy.optimize import least_squares
 from lunarmap.adjust import (BALData, SolverOptions, bal_to_problem, problem_to_bal_cameras, read_bal, solve,
                              write_bal)
 from lunarmap.adjust.rotation import rotate
-from lunarmap.adjust.simulate_block import simulate_frame_block
-from lunarmap.adjust.solver import AdjustmentState, _image_residuals, _prior_terms
+from blockhelp import frame_case
+from lunarmap.adjust.normal import AdjustmentState, image_residuals as _image_residuals, prior_terms as _prior_terms
 
 
 @pytest.fixture(scope="module")
 def block():
-    return simulate_frame_block(orbits=2, per_orbit=4, points=80, seed=7)
+    return frame_case(orbits=2, per_orbit=4, points=80, seed=7)
 
 
 def _bal_project(cams, X):
@@ -49,14 +49,58 @@ def test_lm_matches_least_squares(block):
     assert res.cost < 0.5 * res.cost_initial
 
 
-def test_bal_round_trip_and_same_cost(tmp_path, block):
-    pb = block.problem
+def _bal_block(seed=7):
+    """A BAL problem of a simulated frame block (distortion-free cameras): BAL cameras converted from the
+    navigation FrameCameras, BAL image coordinates converted from the (line, sample) measurements."""
+    from lunarmap.adjust import intersect_points
+    from lunarmap.orientation.rotation import matrix_to_rotvec
+    from lunarmap.simulate import frame_block
+    from lunarmap.simulate.blocks import clementine_interior
+
+    sb = frame_block(orbits=2, per_orbit=4, points=80, seed=seed, interior=clementine_interior(odk=None))
+    cams = []
+    for c in sb.nav_cameras:
+        # BAL camera axes: x right (= sample), y up (= -line), z backwards (= -boresight)
+        R = np.diag([1.0, -1.0, -1.0]) @ c.eo.rotation_at(c.time).T
+        C = c.eo.position_at(c.time)
+        io = c.interior
+        cams.append(np.concatenate([matrix_to_rotvec(R), -R @ C, [io.focal_length / io.pixel_pitch, 0.0, 0.0]]))
+    m = sb.measurements
+    io = sb.nav_cameras[0].interior
+    xy = np.column_stack([m.xy[:, 1] - io.detector_center_sample, io.detector_center_line - m.xy[:, 0]])
+    from lunarmap.adjust import SensorImageModel
+
+    X0 = intersect_points(SensorImageModel(sb.nav_cameras), np.zeros((len(cams), 6)), m.cam_idx, m.pt_idx, m.xy,
+                          m.sigma, n_pt=sb.true_points.shape[0]).xyz
+    return sb, BALData(np.array(cams), X0, m.cam_idx, m.pt_idx, xy)
+
+
+def test_bal_model_equals_frame_camera():
+    """Oracle across models: the BAL collinearity of converted cameras equals FrameCamera.ground_to_image."""
+    sb, data = _bal_block()
+    pb = bal_to_problem(data, control=np.zeros(0, np.int64))
+    m = sb.measurements
+    X = sb.true_points[m.pt_idx]
+    bal = pb.model.project(pb.cam_params, m.cam_idx, X)
+    io = sb.nav_cameras[0].interior
+    for i, cam in enumerate(sb.nav_cameras):
+        k = m.cam_idx == i
+        line, sample = cam.ground_to_image(X[k], within_image=False)
+        np.testing.assert_allclose(bal[k, 0], sample - io.detector_center_sample, atol=1e-9)
+        np.testing.assert_allclose(bal[k, 1], io.detector_center_line - line, atol=1e-9)
+    np.testing.assert_allclose(bal, _bal_project(data.cameras[m.cam_idx], X), atol=1e-9)
+
+
+def test_bal_round_trip_and_same_cost(tmp_path):
+    sb, data = _bal_block()
+    pb = bal_to_problem(data, control=sb.control, control_sigma=0.0, sigma_px=0.3)
     res = solve(pb, SolverOptions(ftol=1e-10))
+    assert res.cost < res.cost_initial
     cams = problem_to_bal_cameras(pb.model, res.cam_params)
     o = pb.obs
-    data = BALData(cams, res.points, o.cam_idx, o.pt_idx, o.xy)
+    out = BALData(cams, res.points, o.cam_idx, o.pt_idx, o.xy)
     path = tmp_path / "b.bal.txt"
-    write_bal(path, data)
+    write_bal(path, out)
     assert [p.name for p in tmp_path.iterdir()] == ["b.bal.txt"]  # no temporary left behind
     back = read_bal(path)
     np.testing.assert_allclose(back.cameras, cams, rtol=1e-15, atol=0)
@@ -97,7 +141,7 @@ def test_reweight_hook_changes_weights(block):
 
 def _lin_and_system(pb, compiled, mu):
     from lunarmap.adjust.schur import SchurStructure
-    from lunarmap.adjust.solver import _Terms, linearize, reduced_system
+    from lunarmap.adjust.normal import Terms as _Terms, linearize, reduced_system
 
     o = pb.obs
     fixed = pb.point_fixed()
@@ -116,7 +160,7 @@ def test_compiled_schur_matches_numpy_path():
 
     if not HAVE_COMPILED:
         pytest.skip("numba not installed")
-    pb = simulate_frame_block(orbits=3, per_orbit=6, points=400, seed=11).problem
+    pb = frame_case(orbits=3, per_orbit=6, points=400, seed=11).problem
     for mu in (0.0, 1e-3):
         _, _, (S1, r1, V1, D1) = _lin_and_system(pb, True, mu)
         _, _, (S0, r0, V0, D0) = _lin_and_system(pb, False, mu)
@@ -130,7 +174,7 @@ def test_factor_backends_give_the_same_step():
     from lunarmap.adjust import DatumDefectError, available_backends
     from lunarmap.adjust.factor import Factorizer
 
-    pb = simulate_frame_block(orbits=3, per_orbit=6, points=400, seed=11).problem
+    pb = frame_case(orbits=3, per_orbit=6, points=400, seed=11).problem
     _, _, (S, rhs, _, _) = _lin_and_system(pb, True, 1e-4)
     ref = np.linalg.solve(S.toarray(), rhs)
     fz = {b: Factorizer(b) for b in available_backends()}
@@ -159,7 +203,7 @@ def sp_eye_neg(n):
 
 
 def test_compiled_and_numpy_solves_agree():
-    pb = simulate_frame_block(orbits=2, per_orbit=5, points=200, seed=5).problem
+    pb = frame_case(orbits=2, per_orbit=5, points=200, seed=5).problem
     a = solve(pb, SolverOptions(ftol=1e-10, compiled=True))
     b = solve(pb, SolverOptions(ftol=1e-10, compiled=False))
     assert a.cost == pytest.approx(b.cost, rel=1e-8)
@@ -170,7 +214,7 @@ def test_numpy_fallbacks_without_numba(monkeypatch):
     """Without numba every kernel has a numpy path: same adjustment, dense precision."""
     from lunarmap.adjust import collinearity, schur
 
-    pb = simulate_frame_block(orbits=2, per_orbit=5, points=200, seed=5).problem
+    pb = frame_case(orbits=2, per_orbit=5, points=200, seed=5).problem
     ref = solve(pb, SolverOptions(ftol=1e-10))
     monkeypatch.setattr(schur, "numba", None)
     monkeypatch.setattr(schur, "HAVE_COMPILED", False)

@@ -15,7 +15,7 @@ from lunarmap.camera import (
     make_distortion,
 )
 from lunarmap.errors import InvalidInputError
-from lunarmap.testing.cameras import frame_interior, nac_like_interior
+from lunarmap.simulate.orbits import frame_interior, nac_like_interior
 
 KAGUYA_BLOCK = {"x": [1e-3, 2e-3, -3e-4, 1e-5], "y": [-2e-3, 1e-3, 2e-4, -1e-5],
                 "boresight_x": 0.01, "boresight_y": -0.02}

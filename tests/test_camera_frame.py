@@ -15,7 +15,7 @@ from lunarmap.camera import (
     image_to_focal,
 )
 from lunarmap.errors import GeometryError, InvalidInputError, NoIntersectionError
-from lunarmap.testing.cameras import frame_interior, polar_orbit_eo
+from lunarmap.simulate.orbits import frame_interior, polar_orbit_eo
 
 R = MOON_RADIUS
 ALT = 50_000.0

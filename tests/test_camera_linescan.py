@@ -8,7 +8,7 @@ import xarray as xr
 
 from lunarmap.camera import MOON_RADIUS, LineScanCamera, LineTimes, Shape, xyz_to_lonlat_height
 from lunarmap.errors import GeometryError, InvalidInputError, NoIntersectionError
-from lunarmap.testing.cameras import (
+from lunarmap.simulate.orbits import (
     NAC_LINE_TIME,
     NAC_LINES,
     NAC_SAMPLES,

@@ -1,7 +1,16 @@
-"""Block adjustment: sparse bundle adjustment with navigation observations, RFM-affine adjustment, precision."""
+"""Block adjustment: sparse bundle adjustment of lunarmap's sensor models with navigation observations,
+control points and full posterior precision.
 
-from .bal import BALData, bal_to_problem, problem_to_bal_cameras, read_bal, write_bal
-from .collinearity import FrameModel, frame_jacobians, project_frame
+* :func:`build_block` / :func:`solve_block` -- named images on their own sensor models
+  (:class:`SensorImageModel`: frame and line-scan cameras with their distortion, RFMs), a control
+  network (tie points from the matcher, control and check points), navigation observations with
+  per-orbit offsets and drifts (:class:`NavigationSpec`); adjusted sensors out;
+* :func:`solve` -- the Levenberg-Marquardt solver on a :class:`BundleProblem` (Schur complement,
+  sparse Cholesky); :class:`AdjustmentResult` and its :meth:`~AdjustmentResult.precision`;
+* :class:`FrameModel` and the BAL reader/writer -- the BAL collinearity model, kept for benchmarks
+  against other solvers.
+"""
+
 from ..errors import (
     AdjustmentDivergedError,
     AdjustmentError,
@@ -11,24 +20,30 @@ from ..errors import (
     NetworkFormatError,
     UnobservedParameterError,
 )
-from .factor import available_backends, factorize
-from .problem import BundleProblem, ImageObservations, PointPriors, ReducedTerm
-from .result import AdjustmentResult
-from .rfm_affine import AffineRFMModel
-from .linescan_poly import LineScanPolyModel
+from .bal import BALData, bal_to_problem, problem_to_bal_cameras, read_bal, write_bal
+from .block import Block, BlockResult, NavigationSpec, build_block, navigation_observations, solve_block
+from .collinearity import FrameModel, frame_jacobians, project_frame
 from .control_points import lonlat_covariance_to_xyz, lonlat_priors
-from .network import ControlNetwork, read_network, write_network
+from .factor import available_backends, factorize
+from .intersection import IntersectionResult, intersect_points
 from .navigation import NavigationObservations
+from .network import (ControlNetwork, merge_networks, network_from_tiepoints, read_network, write_network)
+from .problem import BundleProblem, ImageModel, ImageObservations, PointPriors, ReducedTerm
+from .result import AdjustmentResult
+from .sensors import SensorImageModel
 from .solver import AdjustmentState, SolverOptions, solve
 
 __all__ = [
+    "Block", "BlockResult", "NavigationSpec", "build_block", "solve_block", "navigation_observations",
+    "SensorImageModel", "ImageModel",
     "BALData", "read_bal", "write_bal", "bal_to_problem", "problem_to_bal_cameras",
     "FrameModel", "frame_jacobians", "project_frame",
     "AdjustmentError", "AdjustmentInputError", "InsufficientObservationsError", "UnobservedParameterError",
     "DatumDefectError", "AdjustmentDivergedError", "NetworkFormatError",
-    "available_backends", "factorize",
+    "available_backends", "factorize", "IntersectionResult", "intersect_points",
     "BundleProblem", "ImageObservations", "PointPriors", "ReducedTerm",
     "AdjustmentResult", "AdjustmentState", "SolverOptions", "solve",
-    "AffineRFMModel", "LineScanPolyModel", "lonlat_priors", "lonlat_covariance_to_xyz",
-    "ControlNetwork", "read_network", "write_network", "NavigationObservations",
+    "lonlat_priors", "lonlat_covariance_to_xyz",
+    "ControlNetwork", "read_network", "write_network", "network_from_tiepoints", "merge_networks",
+    "NavigationObservations",
 ]

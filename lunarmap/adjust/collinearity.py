@@ -172,6 +172,22 @@ class FrameModel:
     def n_images(self) -> int:
         return self.R0.shape[0]
 
+    @property
+    def param_mask(self) -> NDArray[np.bool_]:
+        """All six parameters of every image exist."""
+        return np.ones((self.n_images, 6), dtype=bool)
+
+    def initial_points(self, params: NDArray, cam_idx: NDArray, pt_idx: NDArray, xy: NDArray, n_pt: int,
+                       height: float = 0.0) -> NDArray:
+        """Closed-form start values: the points nearest (least squares) to their rays (``height`` unused)."""
+        from .intersection import midpoint_intersection
+
+        R = rotvec_to_matrix(params[:, 0:3]) @ self.R0
+        f = self.f
+        dc = np.column_stack([xy[:, 0] / f[cam_idx], xy[:, 1] / f[cam_idx], -np.ones(xy.shape[0])])
+        dirs = np.einsum("nji,nj->ni", R[cam_idx], dc)   # R^T d_cam
+        return midpoint_intersection(params[cam_idx, 3:6], dirs, pt_idx, n_pt)
+
     def project(self, params: NDArray, cam_idx: NDArray, X: NDArray) -> NDArray:
         """Image coordinates (pixels) of the observations ``cam_idx`` of points ``X (n, 3)``."""
         if _frame_kernel is not None:

@@ -55,10 +55,9 @@ def intersect_points(model, cam_params: NDArray, cam_idx, pt_idx, xy, sigma=1.0,
 
     Parameters
     ----------
-    model : image model with ``linearize(params, cam_idx, X)`` (for example ``FrameModel``)
-        and, if ``x0`` is not given, an ``initial_points(params, cam_idx, pt_idx, xy, n_pt)`` method
-        (``AffineRFMModel``, ``LineScanPolyModel``) or ``R0``/``f`` attributes for the midpoint start
-        (frame cameras).
+    model : ImageModel
+        The adjustment's image model (:class:`~lunarmap.adjust.sensors.SensorImageModel`, or the BAL
+        ``FrameModel``); its ``initial_points`` gives the start values when ``x0`` is not given.
     cam_params : (n_img, p) image parameters.
     cam_idx, pt_idx : (n,) ints; xy : (n, 2) pixels; sigma : scalar or (n, 2) pixels.
     x0 : (n_pt, 3), optional start values.
@@ -79,19 +78,7 @@ def intersect_points(model, cam_params: NDArray, cam_idx, pt_idx, xy, sigma=1.0,
         raise UnobservedParameterError(f"intersection: {int(np.sum(k < 2))} point(s) with fewer than 2 rays, "
                                        f"first: point {int(np.argmax(k < 2))}")
     sig = np.broadcast_to(np.asarray(sigma, float), xy.shape)
-    if x0 is None and hasattr(model, "initial_points"):
-        # models without a closed-form ray (RFM, line scan) provide their own start values
-        x0 = model.initial_points(cam_params, cam_idx, pt_idx, xy, n_pt)
-    if x0 is None:
-        from .rotation import rotvec_to_matrix
-
-        R = rotvec_to_matrix(cam_params[:, 0:3]) @ model.R0
-        f = model.f
-        dc = np.column_stack([xy[:, 0] / f[cam_idx], xy[:, 1] / f[cam_idx], -np.ones(xy.shape[0])])
-        dirs = np.einsum("nji,nj->ni", R[cam_idx], dc)   # R^T d_cam
-        X = midpoint_intersection(cam_params[cam_idx, 3:6], dirs, pt_idx, n_pt)
-    else:
-        X = np.array(x0, float)
+    X = model.initial_points(cam_params, cam_idx, pt_idx, xy, n_pt) if x0 is None else np.array(x0, float)
     agg = aggregation_matrix(pt_idx, n_pt)
     it = 0
     for it in range(1, max_iterations + 1):

@@ -45,7 +45,7 @@ from ..errors import NetworkFormatError
 from .problem import BundleProblem, ImageObservations, PointPriors
 
 __all__ = ["POINT_TYPES", "ControlNetwork", "write_network", "read_network", "network_to_dataset",
-           "network_from_dataset"]
+           "network_from_dataset", "network_from_tiepoints", "merge_networks"]
 
 #: Point types and their codes in the file.
 POINT_TYPES = ("tie", "control", "check")
@@ -179,6 +179,94 @@ class ControlNetwork:
                                          "without coordinates); pass points=")
         return BundleProblem(model, cam_params, points, self.observations(to_model), self.priors(representation),
                              terms=list(terms or []))
+
+
+def network_from_tiepoints(tiepoints: xr.Dataset, prefix: str = "tp", radius: float = MOON_RADIUS) -> ControlNetwork:
+    """A control network of tie points from the matcher's tie-point table.
+
+    Parameters
+    ----------
+    tiepoints : xarray.Dataset
+        The table of :func:`lunarmap.matching.find_tiepoints` (``point_id``, ``image_id``, ``line``,
+        ``sample``, ``sigma_line``, ``sigma_sample`` per observation; image names in ``image``).
+    prefix : str
+        Point ids become ``f"{prefix}{point_id}"``.
+    radius : float
+        Reference radius of the network, metres.
+
+    Returns
+    -------
+    ControlNetwork
+        Tie points without coordinates (NaN ``xyz``), measured with the matching sigmas (pixels).
+
+    Raises
+    ------
+    NetworkFormatError
+        The dataset is not a tie-point table (missing variables, image index out of range).
+    """
+    need = ("point_id", "image_id", "line", "sample", "sigma_line", "sigma_sample")
+    if not isinstance(tiepoints, xr.Dataset):
+        raise NetworkFormatError(f"expected the tie-point Dataset of find_tiepoints, got {type(tiepoints).__name__}")
+    missing = [v for v in need if v not in tiepoints]
+    if missing or "image" not in tiepoints.coords:
+        raise NetworkFormatError(f"not a tie-point table: missing {', '.join(missing + (['image'] if 'image' not in tiepoints.coords else []))}")
+    ids, inverse = np.unique(tiepoints["point_id"].values.astype(np.int64), return_inverse=True)
+    n_pt = ids.size
+    return ControlNetwork(
+        point_id=np.array([f"{prefix}{i}" for i in ids]), point_type=np.full(n_pt, "tie"),
+        xyz=np.full((n_pt, 3), np.nan), measure_point=inverse,
+        measure_image=tiepoints["image_id"].values.astype(np.int64),
+        line_sample=np.column_stack([tiepoints["line"].values, tiepoints["sample"].values]),
+        measure_sigma=np.column_stack([tiepoints["sigma_line"].values, tiepoints["sigma_sample"].values]),
+        image_id=np.asarray(tiepoints["image"].values).astype(str), radius=radius,
+        attrs={"source": "lunarmap.matching tie points"})
+
+
+def merge_networks(*networks: ControlNetwork) -> ControlNetwork:
+    """One network of several (tie points from matching, control and check points measured elsewhere).
+
+    Images are joined by ``image_id``; point ids must be unique across the networks.
+
+    Raises
+    ------
+    NetworkFormatError
+        Repeated point ids, or networks with different radii or bodies.
+    """
+    if not networks:
+        raise NetworkFormatError("merge_networks needs at least one network")
+    first = networks[0]
+    for net in networks[1:]:
+        if net.radius != first.radius or net.body != first.body:
+            raise NetworkFormatError(f"cannot merge networks of different bodies/radii "
+                                     f"({first.body} {first.radius} m vs {net.body} {net.radius} m)")
+    image_ids: list[str] = []
+    names: dict[str, str] = {}
+    for net in networks:
+        for i, n in zip(net.image_id, net.image_name):
+            if i not in names:
+                names[i] = n
+                image_ids.append(i)
+    index = {k: j for j, k in enumerate(image_ids)}
+    offset = 0
+    parts: dict[str, list] = {k: [] for k in ("pid", "ptype", "xyz", "cov", "mp", "mi", "ls", "sig")}
+    for net in networks:
+        parts["pid"].append(net.point_id)
+        parts["ptype"].append(net.point_type)
+        parts["xyz"].append(net.xyz)
+        parts["cov"].append(np.full((net.n_points, 3, 3), np.nan) if net.xyz_cov is None else net.xyz_cov)
+        parts["mp"].append(net.measure_point + offset)
+        parts["mi"].append(np.array([index[i] for i in net.image_id], dtype=np.int64)[net.measure_image]
+                           if net.measure_image.size else np.zeros(0, np.int64))
+        parts["ls"].append(net.line_sample)
+        parts["sig"].append(net.measure_sigma)
+        offset += net.n_points
+    return ControlNetwork(
+        point_id=np.concatenate(parts["pid"]), point_type=np.concatenate(parts["ptype"]),
+        xyz=np.concatenate(parts["xyz"]), measure_point=np.concatenate(parts["mp"]),
+        measure_image=np.concatenate(parts["mi"]), line_sample=np.concatenate(parts["ls"]),
+        measure_sigma=np.concatenate(parts["sig"]), image_id=np.array(image_ids),
+        image_name=np.array([names[i] for i in image_ids]), xyz_cov=np.concatenate(parts["cov"]),
+        radius=first.radius, body=first.body, attrs=dict(first.attrs))
 
 
 def network_to_dataset(net: ControlNetwork) -> xr.Dataset:

@@ -402,7 +402,7 @@ def posterior_precision(result, method: str = "auto", redundancy: bool = False,
     DatumDefectError
         If the normal equations at the solution are singular.
     """
-    from .solver import _Terms, linearize, reduced_system
+    from .normal import Terms, linearize, reduced_system
 
     pb = result.problem
     st = result.structure
@@ -415,7 +415,7 @@ def posterior_precision(result, method: str = "auto", redundancy: bool = False,
     if not getattr(st, "compiled", False):
         raise ValueError("the sparse precision method needs the compiled Schur structure (numba)")
     p = st.p
-    terms = _Terms(pb)
+    terms = Terms(pb)
     fixed_pt = pb.point_fixed()
     lin = linearize(pb, result.state, st, terms, fixed_pt)
     undetermined = _regularize_undetermined_points(lin.V, ~fixed_pt)
@@ -458,12 +458,12 @@ def _regularize_undetermined_points(V: NDArray, active: NDArray) -> NDArray:
 
 def _dense_precision(result, redundancy: bool, scale_by_sigma0: bool) -> Precision:
     """Reference implementation: dense LAPACK inverse of the whole reduced system."""
-    from .solver import _Terms, linearize, reduced_system
+    from .normal import Terms, linearize, reduced_system
 
     pb = result.problem
     st = result.structure
     p = st.p
-    terms = _Terms(pb)
+    terms = Terms(pb)
     fixed_pt = pb.point_fixed()
     lin = linearize(pb, result.state, st, terms, fixed_pt)
     S, _, Vinv, _ = reduced_system(lin, st, terms, 0.0, result.free_red)

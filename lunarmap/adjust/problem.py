@@ -2,8 +2,9 @@
 
 A :class:`BundleProblem` bundles
 
-* an image model (``FrameModel``, ``AffineRFMModel`` ...) exposing ``n_params``,
-  ``project(params, cam_idx, X)`` and ``linearize(params, cam_idx, X)``;
+* an image model (:class:`ImageModel`: :class:`~lunarmap.adjust.sensors.SensorImageModel` over the
+  project's sensor models, or the BAL :class:`~lunarmap.adjust.collinearity.FrameModel` kept for
+  benchmarks);
 * initial image parameters ``(n_img, n_params)`` and points ``(n_pt, 3)``;
 * :class:`ImageObservations` (pixels, with sigma in pixels);
 * :class:`PointPriors` (control points: observed coordinates with sigma,
@@ -26,7 +27,7 @@ from numpy.typing import NDArray
 
 from ..errors import AdjustmentInputError, InsufficientObservationsError, UnobservedParameterError
 
-__all__ = ["ImageObservations", "PointPriors", "ReducedTerm", "BundleProblem"]
+__all__ = ["ImageModel", "ImageObservations", "PointPriors", "ReducedTerm", "BundleProblem"]
 
 
 def _finite(name: str, a: NDArray) -> None:
@@ -34,6 +35,46 @@ def _finite(name: str, a: NDArray) -> None:
     if bad.any():
         first = int(np.argwhere(bad)[0][0])
         raise AdjustmentInputError(f"{name}: {int(bad.sum())} non-finite value(s) (NaN/inf), first at row {first}")
+
+
+class ImageModel(Protocol):
+    """What the solver needs of the images: parameters, projection and partials of observations.
+
+    Attributes
+    ----------
+    n_images, n_params : int
+        Images, and parameters per image (images with fewer parameters are padded).
+    param_names : tuple of str
+        Names of the ``n_params`` columns.
+    param_mask : ndarray (n_images, n_params) bool
+        Which parameters exist (padding columns are ``False`` and held fixed).
+    """
+
+    n_params: int
+    param_names: tuple[str, ...]
+
+    @property
+    def n_images(self) -> int: ...
+
+    @property
+    def param_mask(self) -> NDArray[np.bool_]: ...
+
+    def project(self, params: NDArray, cam_idx: NDArray, X: NDArray) -> NDArray:
+        """Image coordinates ``(n, 2)`` of observations of images ``cam_idx`` of points ``X (n, 3)``."""
+
+    def linearize(self, params: NDArray, cam_idx: NDArray, X: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+        """Image coordinates, ``d/d params (n, 2, n_params)`` and ``d/d X (n, 2, 3)``."""
+
+    def project_indexed(self, params: NDArray, cam_idx: NDArray, points: NDArray, pt_idx: NDArray) -> NDArray:
+        """:meth:`project` of ``points[pt_idx]`` (implementations may avoid the gather)."""
+
+    def linearize_indexed(self, params: NDArray, cam_idx: NDArray, points: NDArray,
+                          pt_idx: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+        """:meth:`linearize` of ``points[pt_idx]``."""
+
+    def initial_points(self, params: NDArray, cam_idx: NDArray, pt_idx: NDArray, xy: NDArray, n_pt: int,
+                       height: float = 0.0) -> NDArray:
+        """Start values ``(n_pt, 3)`` of the points from their measurements (closed form, no iteration)."""
 
 
 @dataclass
@@ -166,12 +207,16 @@ class ReducedTerm(Protocol):
 
     def extra_free(self) -> NDArray[np.bool_]: ...
 
+    def observed_images(self) -> NDArray[np.bool_]:
+        """``(n_img,)`` True for images whose parameters this term observes."""
+        ...
+
 
 @dataclass
 class BundleProblem:
     """A complete adjustment problem; validated on construction."""
 
-    model: Any
+    model: ImageModel
     cam_params: NDArray[np.float64]
     points: NDArray[np.float64]
     obs: ImageObservations
@@ -190,7 +235,7 @@ class BundleProblem:
         n_img, p = self.cam_params.shape
         if p != self.model.n_params:
             raise AdjustmentInputError(f"cam_params has {p} columns, the image model needs {self.model.n_params}")
-        n_model = getattr(self.model, "n_images", n_img)
+        n_model = self.model.n_images
         if n_model != n_img:
             raise AdjustmentInputError(f"cam_params has {n_img} rows but the image model describes {n_model} images")
         if self.points.ndim != 2 or self.points.shape[1] != 3:
@@ -220,9 +265,11 @@ class BundleProblem:
             raise AdjustmentInputError("image observation sigma must be > 0 pixels")
         if self.priors is not None:
             self.priors._validate(n_pt)
+        # padding columns of the image model never move, whatever the caller frees
+        mask = np.asarray(self.model.param_mask, dtype=bool).reshape(n_img, p)
         if self.cam_param_free is None:
-            self.cam_param_free = np.ones((n_img, p), dtype=bool)
-        self.cam_param_free = np.asarray(self.cam_param_free, dtype=bool).reshape(n_img, p)
+            self.cam_param_free = mask.copy()
+        self.cam_param_free = np.asarray(self.cam_param_free, dtype=bool).reshape(n_img, p) & mask
         if self.obs_weight is None:
             self.obs_weight = np.ones(o.n)
         self._check_observability()
@@ -257,7 +304,7 @@ class BundleProblem:
         per_img = np.bincount(o.cam_idx, minlength=self.n_images)
         has_term = np.zeros(self.n_images, dtype=bool)
         for t in self.terms:
-            has_term |= getattr(t, "observed_images", lambda: np.zeros(self.n_images, bool))()
+            has_term |= t.observed_images()
         free_img = self.cam_param_free.any(axis=1)
         lonely = np.nonzero((per_img == 0) & free_img & ~has_term)[0]
         if lonely.size:

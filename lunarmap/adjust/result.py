@@ -84,12 +84,12 @@ class AdjustmentResult:
         Divide by the group's summed redundancy numbers for a group variance factor
         (variance-component estimation).
         """
-        from .solver import _image_residuals, _prior_terms
+        from .normal import image_residuals, prior_terms
 
         out = {}
-        r = _image_residuals(self.problem, self.state)
+        r = image_residuals(self.problem, self.state)
         out["image"] = (float(np.sum(r * r)), int(2 * np.sum(self.state.obs_weight > 0)))
-        pt = _prior_terms(self.problem, self.points)
+        pt = prior_terms(self.problem, self.points)
         if pt is not None:
             out["control"] = (float(np.sum(pt[1] ** 2)), int(pt[1].size))
         for i, t in enumerate(self.problem.terms):

@@ -72,7 +72,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import InvalidInputError
+from ..errors import DistortionPartialsError, InvalidInputError
 
 __all__ = [
     "Distortion",
@@ -134,8 +134,66 @@ class Distortion(ABC):
             Distorted coordinates, mm; NaN where the model has no solution.
         """
 
+    def undistort_jacobian(self, x: ArrayLike, y: ArrayLike) -> Array:
+        """Partial derivatives of :meth:`undistort` at distorted focal-plane coordinates.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Distorted focal-plane coordinates, mm.
+
+        Returns
+        -------
+        ndarray, shape (..., 2, 2)
+            ``d(ux, uy) / d(x, y)``, dimensionless (mm per mm).
+
+        Raises
+        ------
+        DistortionPartialsError
+            The model defines no partial derivatives (the adjustment cannot use it).
+        """
+        raise DistortionPartialsError(
+            f"distortion model {type(self).__name__} ({self.name or 'unnamed'}) has no analytic partial "
+            "derivatives (undistort_jacobian): images with it cannot be adjusted")
+
+    def distort_with_jacobian(self, x: ArrayLike, y: ArrayLike) -> tuple[Array, Array, Array]:
+        """Distorted coordinates of ideal ones and the partials ``d(distorted) / d(undistorted)``.
+
+        The partials are the inverse of :meth:`undistort_jacobian` at the distorted point
+        (inverse-function rule), so every model needs only one direction's derivatives.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Undistorted focal-plane coordinates, mm.
+
+        Returns
+        -------
+        dx, dy : ndarray
+            Distorted coordinates, mm (NaN where the model has no solution).
+        jac : ndarray, shape (..., 2, 2)
+            ``d(dx, dy) / d(x, y)``, dimensionless.
+        """
+        dx, dy = self.distort(x, y)
+        ju = self.undistort_jacobian(dx, dy)
+        det = ju[..., 0, 0] * ju[..., 1, 1] - ju[..., 0, 1] * ju[..., 1, 0]
+        jac = np.empty_like(ju)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            jac[..., 0, 0] = ju[..., 1, 1] / det
+            jac[..., 0, 1] = -ju[..., 0, 1] / det
+            jac[..., 1, 0] = -ju[..., 1, 0] / det
+            jac[..., 1, 1] = ju[..., 0, 0] / det
+        return dx, dy, jac
+
     def __repr__(self) -> str:
         return f"{type(self).__name__}()"
+
+
+def _jacobian(j00: Array, j01: Array, j10: Array, j11: Array) -> Array:
+    j00, j01, j10, j11 = np.broadcast_arrays(j00, j01, j10, j11)
+    out = np.empty(j00.shape + (2, 2))
+    out[..., 0, 0], out[..., 0, 1], out[..., 1, 0], out[..., 1, 1] = j00, j01, j10, j11
+    return out
 
 
 class NoDistortion(Distortion):
@@ -150,6 +208,10 @@ class NoDistortion(Distortion):
     def distort(self, x: ArrayLike, y: ArrayLike) -> tuple[Array, Array]:
         x, y = _xy(x, y)
         return x.copy(), y.copy()
+
+    def undistort_jacobian(self, x: ArrayLike, y: ArrayLike) -> Array:
+        x, _ = _xy(x, y)
+        return _jacobian(np.ones_like(x), np.zeros_like(x), np.zeros_like(x), np.ones_like(x))
 
 
 class LroNacDistortion(Distortion):
@@ -179,6 +241,12 @@ class LroNacDistortion(Distortion):
         with np.errstate(invalid="ignore"):
             dy = 2.0 * y / (1.0 + np.sqrt(disc))
         return x.copy(), np.where(disc >= 0.0, dy, np.nan)
+
+    def undistort_jacobian(self, x: ArrayLike, y: ArrayLike) -> Array:
+        x, y = _xy(x, y)
+        q = 1.0 + self.k1 * y * y
+        zero = np.zeros_like(x)
+        return _jacobian(np.ones_like(x), zero, zero, (1.0 - self.k1 * y * y) / (q * q))
 
     def __repr__(self) -> str:
         return f"LroNacDistortion(k1={self.k1!r})"
@@ -237,6 +305,14 @@ class RadialDistortion(Distortion):
         ratio = np.where(big | fold | (r < 0.0), np.nan, ratio)
         return x * ratio, y * ratio
 
+    def undistort_jacobian(self, x: ArrayLike, y: ArrayLike) -> Array:
+        x, y = _xy(x, y)
+        _, k1, k2 = self.k
+        r2 = x * x + y * y
+        s = self._scale(r2)
+        g = -2.0 * (k1 + 2.0 * k2 * r2)      # 2 ds/d(r^2): d(u_i)/d(d_j) = s delta_ij + g d_i d_j
+        return _jacobian(s + g * x * x, g * x * y, g * x * y, s + g * y * y)
+
     def __repr__(self) -> str:
         return f"RadialDistortion(coefficients={self.k!r})"
 
@@ -279,6 +355,15 @@ class KaguyaLismDistortion(Distortion):
         r = np.hypot(x, y)
         return (x + self._poly(self.a, r) + self.boresight_x,
                 y + self._poly(self.b, r) + self.boresight_y)
+
+    def undistort_jacobian(self, x: ArrayLike, y: ArrayLike) -> Array:
+        x, y = _xy(x, y)
+        r = np.hypot(x, y)
+        # d r / d(x, y) = (x, y) / r; the a1*r term has no derivative at r = 0 (0 is used, as in distort)
+        cx = np.where(r > 0.0, x / np.where(r > 0.0, r, 1.0), 0.0)
+        cy = np.where(r > 0.0, y / np.where(r > 0.0, r, 1.0), 0.0)
+        pa, pb = self._dpoly(self.a, r), self._dpoly(self.b, r)
+        return _jacobian(1.0 + pa * cx, pa * cy, pb * cx, 1.0 + pb * cy)
 
     def distort(self, x: ArrayLike, y: ArrayLike) -> tuple[Array, Array]:
         ux, uy = _xy(x, y)

@@ -160,6 +160,52 @@ class _CameraModel:
         """Origins (m) and unit directions, body-fixed, of finite pixel arrays."""
         raise NotImplementedError
 
+    def corrections(self, degree: int | None = None) -> Any:
+        """The correction parameters of this camera (see :mod:`lunarmap.camera.corrections`)."""
+        raise NotImplementedError
+
+    # -- the SensorModel protocol (lunarmap.camera.sensor) ----------------
+    @property
+    def n_lines(self) -> int:
+        """Image lines."""
+        return int(self.interior.n_lines)
+
+    @property
+    def n_samples(self) -> int:
+        """Image samples."""
+        return int(self.interior.n_samples)
+
+    @property
+    def reference_radius(self) -> float:
+        """Radius of the height reference sphere, metres."""
+        return float(self.shape.reference_radius)
+
+    def rays(self, line: ArrayLike, sample: ArrayLike) -> tuple[Array, Array]:
+        """Sensor positions (metres) and unit look vectors (body-fixed) of image coordinates, shapes ``(..., 3)``."""
+        line, sample = _finite_pixels(line, sample)
+        return self._rays(line, sample)
+
+    def ground_partials(self, xyz: ArrayLike) -> tuple[Array, Array, Array]:
+        """Image coordinates of ground points and their partials with respect to the points.
+
+        Parameters
+        ----------
+        xyz : array_like, shape (..., 3)
+            Body-fixed points, metres.
+
+        Returns
+        -------
+        line, sample : ndarray, shape (...)
+            Pixels (CSM convention), not limited to the image; NaN behind the sensor.
+        jac : ndarray, shape (..., 2, 3)
+            ``d(line, sample) / d(x, y, z)``, pixels per metre.
+        """
+        xyz = _finite_xyz(xyz)
+        corr = self.corrections(degree=0)
+        pix, _, jac = corr.partials(np.zeros(corr.n_params), xyz.reshape(-1, 3))
+        shape = xyz.shape[:-1]
+        return pix[:, 0].reshape(shape), pix[:, 1].reshape(shape), jac.reshape(shape + (2, 3))
+
     # -- shared -----------------------------------------------------------
     def _sensor_look(self, line: Array, sample: Array) -> Array:
         """Undistorted look vectors ``(x, y, f)`` in the sensor frame, mm."""
@@ -311,6 +357,21 @@ class FrameCamera(_CameraModel):
 
     def __repr__(self) -> str:
         return f"FrameCamera({self.interior.name or 'unnamed'}, t={self.time:.6f} s, {self.distortion!r})"
+
+    @property
+    def center_time(self) -> float:
+        """Exposure time, ephemeris seconds (TDB past J2000)."""
+        return float(self.eo.epoch + self.time)
+
+    def corrections(self, degree: int | None = None) -> Any:
+        """Six exterior-orientation corrections (:class:`~lunarmap.camera.corrections.FrameCorrections`).
+
+        ``degree`` is accepted for the :class:`~lunarmap.camera.sensor.SensorModel` protocol and ignored
+        (one exposure has no time dependence).
+        """
+        from .corrections import FrameCorrections
+
+        return FrameCorrections(self)
 
     def sensor_position(self, line: ArrayLike, sample: ArrayLike) -> Array:
         """Sensor position (metres, body-fixed) for image coordinates; shape ``(..., 3)``."""

@@ -43,7 +43,7 @@ the spacecraft flies the other way relative to the sign of
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -208,6 +208,20 @@ class LineScanCamera(_CameraModel):
     def __repr__(self) -> str:
         return (f"LineScanCamera({self.interior.name or 'unnamed'}, {self.interior.n_lines} lines, "
                 f"{self.line_times!r}, {self.distortion!r})")
+
+    @property
+    def center_time(self) -> float:
+        """Exposure time of the image's middle line, ephemeris seconds (TDB past J2000)."""
+        return float(self.eo.epoch + self.image_time(0.5 * self.interior.n_lines))
+
+    def corrections(self, degree: int | None = 1) -> "Any":
+        """Position/attitude correction polynomials of ``degree`` (0-2) in time.
+
+        See :class:`~lunarmap.camera.corrections.LineScanCorrections`; ``None`` means degree 1.
+        """
+        from .corrections import LineScanCorrections
+
+        return LineScanCorrections(self, 1 if degree is None else degree)
 
     # -- image to ground -------------------------------------------------
     def image_time(self, line: ArrayLike) -> Array:

@@ -8,7 +8,7 @@ from .lsm import LsmResult, lsm_match
 from .ncc import NccResult, ncc_match, window_offsets
 from .pairs import STATUS, MatchParams, PairMatches, as_array, match_points
 from .parallel import WORKER_ENVIRON, tiepoint_graph
-from .predict import Prediction, SensorModel, predict_conjugates
+from .predict import Prediction, predict_conjugates
 from .pyramid import build_pyramid, downsample
 from .ransac import RansacParams, ransac_local_affine
 from .resample import bicubic, bicubic_with_gradient, bilinear
@@ -30,7 +30,7 @@ __all__ = [
     "InterestPoints", "foerstner", "invalid_mask",
     "LsmResult", "lsm_match", "NccResult", "ncc_match", "window_offsets",
     "STATUS", "MatchParams", "PairMatches", "as_array", "match_points",
-    "tiepoint_graph", "WORKER_ENVIRON", "Prediction", "SensorModel", "predict_conjugates",
+    "tiepoint_graph", "WORKER_ENVIRON", "Prediction", "predict_conjugates",
     "build_pyramid", "downsample", "RansacParams", "ransac_local_affine",
     "bicubic", "bicubic_with_gradient", "bilinear",
     "DetectParams", "TiePointParams", "assemble_tiepoints", "detect_tile", "find_tiepoints", "match_pair",

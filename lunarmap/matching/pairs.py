@@ -18,7 +18,8 @@ from ..errors import InvalidPixelsWarning, NoOverlapWarning
 from .interest import invalid_mask
 from .lsm import lsm_match
 from .ncc import ncc_match
-from .predict import Prediction, SensorModel, predict_conjugates
+from ..camera.sensor import SensorModel
+from .predict import Prediction, predict_conjugates
 from .pyramid import build_pyramid
 
 __all__ = ["MatchParams", "PairMatches", "match_points", "as_array", "STATUS"]

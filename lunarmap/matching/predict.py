@@ -12,28 +12,18 @@ relief displaces conjugates.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+
 
 import numpy as np
 import xarray as xr
 from numpy.typing import ArrayLike, NDArray
 
+from ..camera.sensor import SensorModel
 from ..errors import InvalidInputError
 
-__all__ = ["SensorModel", "Prediction", "predict_conjugates"]
+__all__ = ["Prediction", "predict_conjugates"]
 
 Array = NDArray[np.float64]
-
-
-@runtime_checkable
-class SensorModel(Protocol):
-    """What matching needs from a sensor model: both directions of the ground/image mapping."""
-
-    def ground_to_image(self, xyz: ArrayLike) -> tuple[Array, Array]:
-        """``(line, sample)`` (pixels, CSM) of body-fixed points (metres); NaN where not seen."""
-
-    def image_to_ground(self, line: ArrayLike, sample: ArrayLike, height: ArrayLike = 0.0) -> Array:
-        """Body-fixed points (metres), shape (..., 3), at ``height`` metres above the reference."""
 
 
 @dataclass
@@ -59,13 +49,11 @@ class Prediction:
     height: Array
 
 
-def _ground(sensor: Any, line: Array, sample: Array, height: Array | None, dtm: xr.DataArray | None) -> Array:
+def _ground(sensor: SensorModel, line: Array, sample: Array, height: Array | None,
+            dtm: xr.DataArray | None) -> Array:
     if dtm is not None:
         return sensor.image_to_ground(line, sample, dtm=dtm, on_miss="nan")
-    try:
-        return sensor.image_to_ground(line, sample, height=height, on_miss="nan")
-    except TypeError:  # a minimal SensorModel without on_miss
-        return sensor.image_to_ground(line, sample, height)
+    return sensor.image_to_ground(line, sample, height=height, on_miss="nan")
 
 
 def predict_conjugates(sensor1: SensorModel, sensor2: SensorModel, line: ArrayLike, sample: ArrayLike,
@@ -89,7 +77,7 @@ def predict_conjugates(sensor1: SensorModel, sensor2: SensorModel, line: ArrayLi
         Height step for the epipolar direction, metres.
     radius : float, optional
         Reference radius for heights read back from DTM intersections, metres
-        (default ``sensor1.shape.reference_radius`` or 1737.4 km).
+        (default ``sensor1.reference_radius``).
 
     Returns
     -------
@@ -104,8 +92,7 @@ def predict_conjugates(sensor1: SensorModel, sensor2: SensorModel, line: ArrayLi
     if dtm is not None:
         g0 = _ground(sensor1, line, sample, None, dtm)
         if radius is None:
-            shape = getattr(sensor1, "shape", None)
-            radius = float(shape.reference_radius) if shape is not None else 1737.4e3
+            radius = float(sensor1.reference_radius)
         h = np.linalg.norm(g0, axis=-1) - radius
     else:
         h = np.broadcast_to(np.asarray(height, dtype=float), (n,)).copy()

@@ -34,7 +34,8 @@ from numpy.typing import NDArray
 
 from ._blas import single_threaded_blas
 from ..errors import RpcFitError, RpcInputError
-from .grid import (DEFAULT_HEIGHT_RANGE, CameraModel, GridNodes, GroundGrid, check_grid_nodes, fit_grid_nodes,
+from ..camera.sensor import SensorModel
+from .grid import (DEFAULT_HEIGHT_RANGE, GridNodes, GroundGrid, check_grid_nodes, fit_grid_nodes,
                    height_layers, rigorous_grid)
 from .model import RationalFunctionModel
 from .terms import N_TERMS, rpc_terms
@@ -130,7 +131,7 @@ class RpcFit:
 
 
 def _residual_report(model: RationalFunctionModel, grid: GroundGrid) -> FitReport:
-    line, sample = model.ground_to_image(grid.lon, grid.lat, grid.height)
+    line, sample = model.lonlat_to_image(grid.lon, grid.lat, grid.height)
     dl = line - grid.line
     ds = sample - grid.sample
     d = np.hypot(dl, ds)
@@ -282,7 +283,7 @@ def fit_rfm(grid: GroundGrid, n_lines: int, n_samples: int, height_range: tuple[
                       f"(smallest {min_den:.3g}); the grid does not constrain the model")
 
 
-def check_fit(model: RationalFunctionModel, camera: CameraModel, nodes: GridNodes | None = None,
+def check_fit(model: RationalFunctionModel, camera: SensorModel, nodes: GridNodes | None = None,
               options: FitOptions = FitOptions()) -> FitReport:
     """RMS and maximum RFM error (pixels) on an independent check grid of the rigorous model.
 
@@ -300,12 +301,11 @@ def check_fit(model: RationalFunctionModel, camera: CameraModel, nodes: GridNode
     return _residual_report(model, grid)
 
 
-def _provenance(camera: CameraModel, options: FitOptions, layers: Array, nodes: GridNodes) -> dict[str, Any]:
+def _provenance(camera: SensorModel, options: FitOptions, layers: Array, nodes: GridNodes) -> dict[str, Any]:
     from .. import __version__ as version  # noqa: PLC0415 (avoid an import cycle at package import)
 
     return {
         "source_camera": repr(camera),
-        "instrument": str(getattr(camera.interior, "name", "") or ""),
         "fit_method": "virtual control grid in height layers, linearised LSQ with 1/D weights, "
                       "Gauss-Newton refinement, ridge on denominators (seeds/001 Eqs. 11-12)",
         "fit_height_layers_m": layers,
@@ -315,13 +315,13 @@ def _provenance(camera: CameraModel, options: FitOptions, layers: Array, nodes: 
     }
 
 
-def fit_rpc(camera: CameraModel, height_range: tuple[float, float] | None = None, *, check: bool = True,
+def fit_rpc(camera: SensorModel, height_range: tuple[float, float] | None = None, *, check: bool = True,
             options: FitOptions | None = None, **option_overrides: Any) -> RpcFit:
     """Fit a cubic RFM to a rigorous camera model and check it on an independent grid.
 
     Parameters
     ----------
-    camera : FrameCamera or LineScanCamera
+    camera : SensorModel (FrameCamera, LineScanCamera)
         The rigorous sensor model (``lunarmap.camera``).
     height_range : (float, float), optional
         Terrain heights to serve, metres above the camera shape's reference
@@ -357,8 +357,7 @@ def fit_rpc(camera: CameraModel, height_range: tuple[float, float] | None = None
             raise RpcInputError(f"unknown fit option(s): {', '.join(sorted(unknown))}")
         opts = FitOptions(**{**asdict(opts), **option_overrides})
     layers = height_layers(opts.height_range, opts.n_layers, opts.margin)
-    io = camera.interior
-    nodes = fit_grid_nodes(io.n_lines, io.n_samples, layers, opts.short_axis, opts.long_axis_max)
+    nodes = fit_grid_nodes(camera.n_lines, camera.n_samples, layers, opts.short_axis, opts.long_axis_max)
     # One BLAS thread for the whole fit: see lunarmap.rpc._blas (and dask
     # workers run one, so serial and distributed results are bitwise equal).
     with single_threaded_blas():
@@ -366,18 +365,17 @@ def fit_rpc(camera: CameraModel, height_range: tuple[float, float] | None = None
         return fit_from_grid(camera, grid, nodes, layers, opts, check)
 
 
-def fit_from_grid(camera: CameraModel, grid: GroundGrid, nodes: GridNodes, layers: Array, opts: FitOptions,
+def fit_from_grid(camera: SensorModel, grid: GroundGrid, nodes: GridNodes, layers: Array, opts: FitOptions,
                   check: bool = True, check_grid: GroundGrid | None = None) -> RpcFit:
     """:func:`fit_rpc` after the rigorous grid is computed (the dask path computes it in tiles)."""
     with single_threaded_blas():
         return _fit_from_grid(camera, grid, nodes, layers, opts, check, check_grid)
 
 
-def _fit_from_grid(camera: CameraModel, grid: GroundGrid, nodes: GridNodes, layers: Array, opts: FitOptions,
+def _fit_from_grid(camera: SensorModel, grid: GroundGrid, nodes: GridNodes, layers: Array, opts: FitOptions,
                    check: bool, check_grid: GroundGrid | None) -> RpcFit:
-    io = camera.interior
-    model, lam, min_den = fit_rfm(grid, io.n_lines, io.n_samples, (float(layers[0]), float(layers[-1])),
-                                  camera.shape.reference_radius, opts, _provenance(camera, opts, layers, nodes))
+    model, lam, min_den = fit_rfm(grid, camera.n_lines, camera.n_samples, (float(layers[0]), float(layers[-1])),
+                                  camera.reference_radius, opts, _provenance(camera, opts, layers, nodes))
     fit_report = _residual_report(model, grid)
     report = None
     if check_grid is not None:

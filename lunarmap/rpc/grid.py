@@ -12,16 +12,16 @@ refuses grids that miss the body or reach the limb.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..camera.geodesy import xyz_to_lonlat_height
+from ..camera.sensor import SensorModel
 from ._blas import single_threaded_blas
 from ..errors import RpcGridError, RpcInputError, RpcLimbError
 
-__all__ = ["GridNodes", "GroundGrid", "CameraModel", "height_layers", "fit_grid_nodes", "check_grid_nodes",
+__all__ = ["GridNodes", "GroundGrid", "height_layers", "fit_grid_nodes", "check_grid_nodes",
            "rigorous_grid", "DEFAULT_HEIGHT_RANGE"]
 
 Array = NDArray[np.float64]
@@ -29,18 +29,6 @@ Array = NDArray[np.float64]
 #: Heights spanned by lunar terrain above the 1737.4 km sphere (LOLA: about
 #: -9.1 km to +10.8 km), metres; the default height range of a fit.
 DEFAULT_HEIGHT_RANGE = (-9200.0, 10800.0)
-
-
-class CameraModel(Protocol):
-    """What the RPC fit needs of a rigorous sensor model (FrameCamera, LineScanCamera)."""
-
-    interior: Any
-    shape: Any
-
-    def image_to_ground(self, line: ArrayLike, sample: ArrayLike, height: ArrayLike = 0.0, dtm: Any = None,
-                        on_miss: str = "raise") -> Array: ...
-
-    def sensor_position(self, line: ArrayLike, sample: ArrayLike) -> Array: ...
 
 
 @dataclass(frozen=True)
@@ -153,13 +141,13 @@ def check_grid_nodes(n_lines: int, n_samples: int, fit_heights: ArrayLike, short
     return GridNodes(axis(nl, n_lines), axis(ns, n_samples), heights)
 
 
-def rigorous_grid(camera: CameraModel, nodes: GridNodes, max_emission: float = 85.0) -> GroundGrid:
+def rigorous_grid(camera: SensorModel, nodes: GridNodes, max_emission: float = 85.0) -> GroundGrid:
     """Ground coordinates of grid nodes from the rigorous sensor model.
 
     Parameters
     ----------
-    camera : FrameCamera or LineScanCamera
-        The rigorous model; ``camera.image_to_ground`` at each layer height.
+    camera : SensorModel
+        The rigorous model (FrameCamera, LineScanCamera); ``camera.image_to_ground`` at each layer height.
     nodes : GridNodes
         Image lines, samples (pixels, CSM) and heights (metres).
     max_emission : float
@@ -183,14 +171,14 @@ def rigorous_grid(camera: CameraModel, nodes: GridNodes, max_emission: float = 8
         return _rigorous_grid(camera, nodes, max_emission)
 
 
-def _rigorous_grid(camera: CameraModel, nodes: GridNodes, max_emission: float) -> GroundGrid:
+def _rigorous_grid(camera: SensorModel, nodes: GridNodes, max_emission: float) -> GroundGrid:
     L, S = np.meshgrid(nodes.lines, nodes.samples, indexing="ij")
     line = np.broadcast_to(L.ravel(), (nodes.heights.size, L.size))
     sample = np.broadcast_to(S.ravel(), (nodes.heights.size, S.size))
     height = np.broadcast_to(nodes.heights[:, None], line.shape)
     xyz = camera.image_to_ground(line, sample, height=height, on_miss="nan")
     miss = ~np.all(np.isfinite(xyz), axis=-1)
-    name = getattr(camera.interior, "name", "") or "the image"
+    name = repr(camera)
     if miss.all():
         raise RpcGridError(f"the virtual grid of {name} misses the body: none of its {miss.size} rays "
                            f"(heights {nodes.heights.min():.0f} to {nodes.heights.max():.0f} m) hits the "
@@ -200,14 +188,13 @@ def _rigorous_grid(camera: CameraModel, nodes: GridNodes, max_emission: float) -
                            f"virtual grid rays miss the body (heights {nodes.heights.min():.0f} to "
                            f"{nodes.heights.max():.0f} m)")
     # Emission angle on the lowest layer's points (the highest emission for a given ray).
-    sensor = camera.sensor_position(line[0], sample[0])
     g = xyz[0]
-    to_sensor = sensor - g
+    to_sensor = -camera.look_vector(line[0], sample[0])
     cos_e = np.einsum("ij,ij->i", to_sensor, g) / (np.linalg.norm(to_sensor, axis=-1) * np.linalg.norm(g, axis=-1))
     emission = np.degrees(np.arccos(np.clip(cos_e, -1.0, 1.0)))
     if emission.max() > max_emission:
         raise RpcLimbError(f"the footprint of {name} reaches the limb: emission angles up to "
                            f"{emission.max():.1f} deg exceed max_emission={max_emission} deg")
-    lon, lat, h = xyz_to_lonlat_height(xyz, camera.shape.reference_radius)
+    lon, lat, h = xyz_to_lonlat_height(xyz, camera.reference_radius)
     return GroundGrid(np.ascontiguousarray(line).ravel(), np.ascontiguousarray(sample).ravel(),
                       lon.ravel(), lat.ravel(), h.ravel())

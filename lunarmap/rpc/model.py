@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..camera.geodesy import lonlat_height_to_xyz, xyz_to_lonlat_height
 from ..camera.shape import MOON_RADIUS
-from ..errors import RpcConvergenceError, RpcFormatError, RpcInputError
+from ..errors import GeometryError, RpcConvergenceError, RpcFormatError, RpcInputError
 from .terms import N_TERMS, TERM_NAMES, rpc_term_gradients, rpc_terms
 
 __all__ = ["RationalFunctionModel", "POLYNOMIALS", "COORDINATES"]
@@ -135,9 +135,48 @@ class RationalFunctionModel:
         o, s = self.offsets, self.scales
         return p[..., 0] / p[..., 1] * s[0] + o[0], p[..., 2] / p[..., 3] * s[1] + o[1]
 
-    # -- ground to image -----------------------------------------------------
-    def ground_to_image(self, lon: ArrayLike, lat: ArrayLike, height: ArrayLike = 0.0) -> tuple[Array, Array]:
-        """Image coordinates of ground points (Eq. 11 of ``seeds/001``).
+    # -- the SensorModel protocol (lunarmap.camera.sensor) ----------------------
+    @property
+    def reference_radius(self) -> float:
+        """Radius of the height reference sphere, metres."""
+        return self.radius
+
+    def ground_to_image(self, xyz: ArrayLike, on_miss: str = "nan",
+                        within_image: bool = True) -> tuple[Array, Array]:
+        """Image coordinates of body-fixed ground points.
+
+        Parameters
+        ----------
+        xyz : array_like, shape (..., 3)
+            Body-fixed points, metres.
+        on_miss : {"nan", "raise"}
+            Points outside the image (with ``within_image`` and a known image size): NaN
+            coordinates or :class:`~lunarmap.errors.GeometryError`.
+        within_image : bool
+            Treat coordinates outside ``[0, n_lines] x [0, n_samples]`` as not seen.
+
+        Returns
+        -------
+        line, sample : ndarray, shape (...)
+            Pixels, CSM convention.
+        """
+        if on_miss not in ("raise", "nan"):
+            raise RpcInputError(f"on_miss must be 'raise' or 'nan', got {on_miss!r}")
+        xyz = self._check_xyz(xyz)
+        lon, lat, h = xyz_to_lonlat_height(xyz, self.radius)
+        line, sample = self.lonlat_to_image(lon, lat, h)
+        if within_image and self.n_lines > 0 and self.n_samples > 0:
+            tol = 1e-6
+            inside = (line >= -tol) & (line <= self.n_lines + tol) & (sample >= -tol) & (sample <= self.n_samples + tol)
+            if on_miss == "raise" and not np.all(inside):
+                raise GeometryError(f"{int(np.count_nonzero(~inside))} of {inside.size} ground point(s) fall "
+                                    f"outside the {self.n_lines} x {self.n_samples} image of this RFM")
+            line = np.where(inside, line, np.nan)
+            sample = np.where(inside, sample, np.nan)
+        return line, sample
+
+    def lonlat_to_image(self, lon: ArrayLike, lat: ArrayLike, height: ArrayLike = 0.0) -> tuple[Array, Array]:
+        """Image coordinates of planetocentric ground coordinates (Eq. 11 of ``seeds/001``).
 
         Parameters
         ----------
@@ -149,7 +188,7 @@ class RationalFunctionModel:
         Returns
         -------
         line, sample : ndarray
-            Image coordinates, pixels, CSM convention.
+            Image coordinates, pixels, CSM convention (not limited to the image).
 
         Raises
         ------
@@ -157,12 +196,6 @@ class RationalFunctionModel:
             NaN or infinite coordinates.
         """
         return self._image_from_normalized(*self.normalize_ground(lon, lat, height))
-
-    def ground_to_image_xyz(self, xyz: ArrayLike) -> tuple[Array, Array]:
-        """Image coordinates (pixels) of body-fixed points ``(..., 3)``, metres."""
-        xyz = self._check_xyz(xyz)
-        lon, lat, h = xyz_to_lonlat_height(xyz, self.radius)
-        return self.ground_to_image(lon, lat, h)
 
     def _check_xyz(self, xyz: ArrayLike) -> Array:
         xyz = np.asarray(xyz, dtype=float)
@@ -215,7 +248,7 @@ class RationalFunctionModel:
         sample = p[..., 2] / p[..., 3] * s[1] + o[1]
         return line, sample, jac
 
-    def jacobian_xyz(self, xyz: ArrayLike) -> tuple[Array, Array, Array]:
+    def ground_partials(self, xyz: ArrayLike) -> tuple[Array, Array, Array]:
         """Image coordinates and their partials with respect to body-fixed ``(x, y, z)``.
 
         Chain rule through the planetocentric coordinates:
@@ -254,7 +287,7 @@ class RationalFunctionModel:
         return line, sample, j_llh @ d
 
     # -- image to ground -----------------------------------------------------
-    def image_to_ground(self, line: ArrayLike, sample: ArrayLike, height: ArrayLike = 0.0,
+    def image_to_lonlat(self, line: ArrayLike, sample: ArrayLike, height: ArrayLike = 0.0,
                         on_fail: str = "raise") -> tuple[Array, Array]:
         """Ground coordinates seen at image coordinates, at given heights (Newton iterations).
 
@@ -329,12 +362,88 @@ class RationalFunctionModel:
         lat = y * s[2] + o[2]
         return lon.reshape(shape), lat.reshape(shape)
 
-    def image_to_ground_xyz(self, line: ArrayLike, sample: ArrayLike, height: ArrayLike = 0.0,
-                            on_fail: str = "raise") -> Array:
-        """Body-fixed ground points ``(..., 3)``, metres, seen at image coordinates at given heights."""
-        lon, lat = self.image_to_ground(line, sample, height, on_fail=on_fail)
-        return lonlat_height_to_xyz(lon, lat, np.broadcast_to(np.asarray(height, dtype=float), lon.shape),
-                                    self.radius)
+    def image_to_ground(self, line: ArrayLike, sample: ArrayLike, height: ArrayLike = 0.0, dtm: Any = None,
+                        on_miss: str = "raise", tol: float = 1e-3) -> Array:
+        """Body-fixed ground points seen at image coordinates, at given heights or on a DTM.
+
+        Parameters
+        ----------
+        line, sample : array_like
+            Image coordinates, pixels (CSM convention).
+        height : array_like
+            Height above the reference sphere, metres (ignored with ``dtm``).
+        dtm : xarray.DataArray or DtmSampler, optional
+            Heights (metres above ``radius``) on ``lat`` x ``lon`` (degrees): the point is found
+            by iterating height -> ``(lon, lat)`` -> DTM height.
+        on_miss : {"raise", "nan"}
+            Points that do not converge (or leave the DTM): raise, or NaN rows.
+        tol : float
+            DTM iteration threshold on height, metres.
+
+        Returns
+        -------
+        ndarray, shape (..., 3)
+            Body-fixed points, metres.
+        """
+        if on_miss not in ("raise", "nan"):
+            raise RpcInputError(f"on_miss must be 'raise' or 'nan', got {on_miss!r}")
+        line, sample = np.broadcast_arrays(np.asarray(line, dtype=float), np.asarray(sample, dtype=float))
+        if dtm is None:
+            h = np.broadcast_to(np.asarray(height, dtype=float), line.shape)
+            lon, lat = self.image_to_lonlat(line, sample, h, on_fail=on_miss)
+            return lonlat_height_to_xyz(lon, lat, h, self.radius)
+        return self._image_to_dtm(line, sample, dtm, on_miss, tol)
+
+    def _image_to_dtm(self, line: Array, sample: Array, dtm: Any, on_miss: str, tol: float) -> Array:
+        from ..camera.intersect import DtmSampler
+
+        sampler = dtm if isinstance(dtm, DtmSampler) else DtmSampler(dtm)
+        h = np.full(line.shape, float(self.offsets[4]))
+        lon = lat = np.full(line.shape, np.nan)
+        done = np.zeros(line.shape, dtype=bool)
+        for _ in range(50):
+            lon, lat = self.image_to_lonlat(line, sample, h, on_fail="nan")
+            with np.errstate(invalid="ignore"):
+                h_new = sampler(lon, lat)
+            step = h_new - h
+            h = np.where(np.isfinite(h_new), h_new, h)
+            done = np.isfinite(step) & (np.abs(step) < tol)
+            if np.all(done | ~np.isfinite(step)):
+                break
+        bad = ~done
+        if bad.any() and on_miss == "raise":
+            raise RpcConvergenceError(f"RFM image_to_ground on the DTM failed for {int(bad.sum())} of {bad.size} "
+                                      "point(s) (outside the DTM or no convergence)")
+        xyz = lonlat_height_to_xyz(lon, lat, h, self.radius)
+        return np.where(bad[..., None], np.nan, xyz)
+
+    def rays(self, line: ArrayLike, sample: ArrayLike) -> tuple[Array, Array]:
+        """Points at the top of the RFM's height range and unit directions down to its bottom (body-fixed).
+
+        An RFM has no sensor position: its "ray" through a pixel is the line joining the ground
+        points of that pixel at the highest and lowest heights it was fitted for.
+        """
+        lo, hi = self.height_range
+        top = self.image_to_ground(line, sample, hi)
+        d = self.image_to_ground(line, sample, lo) - top
+        return top, d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def look_vector(self, line: ArrayLike, sample: ArrayLike) -> Array:
+        """Unit vectors (body-fixed) from the top to the bottom of the height range, see :meth:`rays`."""
+        return self.rays(line, sample)[1]
+
+    def corrections(self, degree: int | None = None, origin: str = "center") -> Any:
+        """Six affine image-space corrections (``seeds/001`` Eq. 13).
+
+        ``origin``: ``"center"`` (the RFM's line/sample offsets: better conditioned) or ``"image"``
+        (``(0, 0)``, Eq. 13 literally). ``degree`` is ignored (no time dependence).
+        """
+        from ..camera.corrections import AffineCorrections
+
+        if origin not in ("center", "image"):
+            raise RpcInputError(f"origin must be 'center' or 'image', got {origin!r}")
+        o = (float(self.offsets[0]), float(self.offsets[1])) if origin == "center" else (0.0, 0.0)
+        return AffineCorrections(self, o)
 
     # -- storage ---------------------------------------------------------------
     @property

@@ -37,7 +37,8 @@ from dask.delayed import Delayed
 
 from ..errors import RpcInputError
 from .fit import FitOptions, RpcFit, fit_from_grid, fit_rpc
-from .grid import CameraModel, GridNodes, GroundGrid, check_grid_nodes, fit_grid_nodes, height_layers, rigorous_grid
+from ..camera.sensor import SensorModel
+from .grid import GridNodes, GroundGrid, check_grid_nodes, fit_grid_nodes, height_layers, rigorous_grid
 
 __all__ = ["rigorous_grid_delayed", "fit_rpc_delayed", "fit_many", "ExactCamera", "WORKER_ENVIRON"]
 
@@ -66,7 +67,7 @@ class ExactCamera:
     were instead of being re-normalised (see the module notes).
     """
 
-    def __init__(self, camera: CameraModel) -> None:
+    def __init__(self, camera: SensorModel) -> None:
         self.camera = camera
 
     def __reduce__(self) -> tuple[Any, ...]:
@@ -84,7 +85,7 @@ def _load_exact(data: bytes) -> "ExactCamera":
     return ExactCamera(pickle.loads(data))
 
 
-def _unwrap(cam: CameraModel | ExactCamera) -> CameraModel:
+def _unwrap(cam: SensorModel | ExactCamera) -> SensorModel:
     return cam.camera if isinstance(cam, ExactCamera) else cam
 
 
@@ -96,7 +97,7 @@ def _fit_exact(cam: ExactCamera, check: bool, options: FitOptions) -> RpcFit:
     return fit_rpc(cam.camera, check=check, options=options)
 
 
-def _tile(camera: CameraModel | ExactCamera, nodes: GridNodes, max_emission: float) -> GroundGrid:
+def _tile(camera: SensorModel | ExactCamera, nodes: GridNodes, max_emission: float) -> GroundGrid:
     return rigorous_grid(_unwrap(camera), nodes, max_emission)
 
 
@@ -107,7 +108,7 @@ def _stitch(parts: list[GroundGrid], n_heights: int, n_samples: int) -> GroundGr
     return GroundGrid(*(cat(k) for k in ("line", "sample", "lon", "lat", "height")))
 
 
-def rigorous_grid_delayed(camera: CameraModel | Delayed, nodes: GridNodes, tile_lines: int = 32,
+def rigorous_grid_delayed(camera: SensorModel | Delayed, nodes: GridNodes, tile_lines: int = 32,
                           max_emission: float = 85.0) -> Delayed:
     """A delayed :class:`~lunarmap.rpc.grid.GroundGrid` computed in tiles of ``tile_lines`` grid lines.
 
@@ -134,7 +135,7 @@ def _options(height_range: tuple[float, float] | None, options: FitOptions | Non
     return FitOptions(**{**asdict(opts), **overrides}) if overrides else opts
 
 
-def fit_rpc_delayed(camera: CameraModel, height_range: tuple[float, float] | None = None, *, check: bool = True,
+def fit_rpc_delayed(camera: SensorModel, height_range: tuple[float, float] | None = None, *, check: bool = True,
                     tile_lines: int | None = None, options: FitOptions | None = None,
                     **option_overrides: Any) -> Delayed:
     """The dask graph of :func:`~lunarmap.rpc.fit.fit_rpc` for one image; computes to an :class:`RpcFit`.
@@ -154,21 +155,20 @@ def fit_rpc_delayed(camera: CameraModel, height_range: tuple[float, float] | Non
     if tile_lines is None:
         # one task per image: nothing to ship between workers but the result
         return dask.delayed(_fit_exact, pure=True)(ExactCamera(camera), check, opts)
-    io = camera.interior
     layers = height_layers(opts.height_range, opts.n_layers, opts.margin)
-    nodes = fit_grid_nodes(io.n_lines, io.n_samples, layers, opts.short_axis, opts.long_axis_max)
+    nodes = fit_grid_nodes(camera.n_lines, camera.n_samples, layers, opts.short_axis, opts.long_axis_max)
     # the wrapper travels between workers with the tasks that need the camera
     cam = dask.delayed(ExactCamera(camera), traverse=False)
     grid = rigorous_grid_delayed(cam, nodes, tile_lines, opts.max_emission)
     check_grid = None
     if check:
-        cnodes = check_grid_nodes(io.n_lines, io.n_samples, layers, opts.short_axis, opts.long_axis_max,
+        cnodes = check_grid_nodes(camera.n_lines, camera.n_samples, layers, opts.short_axis, opts.long_axis_max,
                                   opts.check_density, opts.check_outside)
         check_grid = rigorous_grid_delayed(cam, cnodes, tile_lines, 90.0)
     return dask.delayed(_fit_from_grid_exact, pure=True)(cam, grid, nodes, layers, opts, check, check_grid)
 
 
-def fit_many(cameras: Sequence[CameraModel], height_ranges: Sequence[tuple[float, float] | None] | None = None,
+def fit_many(cameras: Sequence[SensorModel], height_ranges: Sequence[tuple[float, float] | None] | None = None,
              *, client: Any = None, check: bool = True, tile_lines: int | None = None,
              options: FitOptions | None = None, **option_overrides: Any) -> list[RpcFit]:
     """Fit RFMs to many images as one dask graph.

@@ -1,6 +1,7 @@
-"""Image simulation with known truth: synthetic terrain and albedo, and a DTM + orthoimage renderer."""
+"""Simulation with known truth: terrain and albedo, a DTM + orthoimage renderer, stereo geometry, adjustment blocks."""
 
 from ..errors import SimulationWarning
+from .blocks import Measurements, SimulatedBlock, frame_block, linescan_site, local_enu, observe
 from .render import RenderSpec, render_image, surface_normals
 from .sampling import RasterSampler
 from .stereo import look_angle_for_emission, pointed_camera, stereo_pair
@@ -18,4 +19,5 @@ __all__ = [
     "render_image", "RenderSpec", "surface_normals", "RasterSampler", "SimulationWarning",
     "local_grid", "rolling_terrain", "add_craters", "synthetic_dtm", "synthetic_albedo", "synthetic_scene",
     "look_angle_for_emission", "pointed_camera", "stereo_pair", "true_conjugates", "matching_errors",
+    "Measurements", "SimulatedBlock", "frame_block", "linescan_site", "local_enu", "observe",
 ]

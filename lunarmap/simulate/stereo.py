@@ -5,7 +5,7 @@ symmetrically east and west of the target, each rolled across track so that
 the image centre sees the target: the pair has equal emission angles ``c/2``
 on opposite sides of nadir, the set-up of the LROC study's simulation
 (seeds/001, section 3.4). Pure numpy (no SPICE), built on
-:mod:`lunarmap.testing.cameras`.
+:mod:`lunarmap.simulate.orbits`.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from ..camera import FrameCamera, LineScanCamera, Shape
 from ..camera.interior import InteriorOrientation
 from ..camera.shape import MOON_RADIUS
 from ..errors import InvalidInputError
-from ..testing.cameras import NAC_LINE_TIME, frame_interior, nac_like_interior, polar_orbit_eo
+from .orbits import NAC_LINE_TIME, frame_interior, nac_like_interior, polar_orbit_eo
 
 __all__ = ["look_angle_for_emission", "pointed_camera", "stereo_pair"]
 

@@ -108,7 +108,7 @@ def polar_orbit_eo(lat_center: float = 0.0, lon: float = 30.0, altitude: float =
     sun = np.array([[1.5e11, 0.0, 0.0], [1.5e11, 1.0e6, 0.0]])
     return ExteriorOrientation(epoch=epoch, times=t, positions=pos, velocities=vel, quaternions=q,
                                sun_times=sun_t, sun_positions=sun,
-                               attrs={"source": "lunarmap.testing.cameras.polar_orbit_eo"})
+                               attrs={"source": "lunarmap.simulate.orbits.polar_orbit_eo"})
 
 
 def nac_like_interior(n_lines: int = NAC_LINES, n_samples: int = NAC_SAMPLES, k1: float | None = 1.81e-5,

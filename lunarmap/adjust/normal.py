@@ -1,0 +1,229 @@
+"""Normal equations of the bundle adjustment: residuals, Jacobians, Schur-reduced system, back-substitution.
+
+Shared by the solver (:mod:`.solver`), the posterior precision (:mod:`.precision`) and the result
+(:mod:`.result`), so that none of them imports another's internals.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from .problem import BundleProblem
+from .schur import SchurStructure, inv_sym3, normal_blocks, whiten
+
+__all__ = ["AdjustmentState", "Linearization", "Terms", "linearize", "reduced_system", "back_substitute",
+           "evaluate_cost", "image_residuals", "prior_terms", "split_extra"]
+
+
+@dataclass
+class AdjustmentState:
+    """Current unknowns (image parameters, points, extra parameters) and weights."""
+
+    cam_params: NDArray[np.float64]
+    points: NDArray[np.float64]
+    extra: NDArray[np.float64]
+    obs_weight: NDArray[np.float64]
+    iteration: int = 0
+    cost: float = np.nan
+
+
+@dataclass
+class Linearization:
+    """Whitened residuals and Jacobian blocks at one state (also used by the precision module)."""
+
+    r: NDArray            # (n_obs, 2) whitened image residuals
+    Ac: NDArray           # (n_obs, 2, p)
+    Ap: NDArray           # (n_obs, 2, 3)
+    U: NDArray            # (n_cam, p, p)
+    V: NDArray            # (n_pt, 3, 3)
+    W: NDArray | None     # (n_obs, p, 3); None on the compiled path (formed on the fly from Ac, Ap)
+    gc: NDArray           # (n_cam * p,)
+    gp: NDArray           # (n_pt, 3)
+    rx: NDArray           # (m,) whitened camera-level residuals
+    Jx: sp.csr_matrix | None
+    Nx: sp.csr_matrix | None
+    gx: NDArray           # (n_red,)
+    cost: float
+    prior_r: NDArray | None = None
+
+
+def prior_terms(problem: BundleProblem, points: NDArray):
+    """Weighted control points: indices (k,), whitened residuals ``W (X - xyz)`` (k, 3) and ``W`` (k, 3, 3).
+
+    ``W^T W`` is the inverse covariance of each control point (diagonal for per-axis sigma, full
+    for correlated priors such as lat/lon/h control converted to body-fixed XYZ).
+    """
+    pr = problem.priors
+    if pr is None:
+        return None
+    m = ~pr.fixed
+    idx = pr.idx[m]
+    W = pr.sqrt_weight()[m]
+    return idx, np.einsum("kij,kj->ki", W, points[idx] - pr.xyz[m]), W
+
+
+def image_residuals(problem: BundleProblem, state: AdjustmentState) -> NDArray:
+    o = problem.obs
+    m = problem.model
+    if hasattr(m, "project_indexed"):
+        x = m.project_indexed(state.cam_params, o.cam_idx, state.points, o.pt_idx)
+    else:
+        x = m.project(state.cam_params, o.cam_idx, state.points[o.pt_idx])
+    return (x - o.xy) * (np.sqrt(state.obs_weight)[:, None] / o.sigma)
+
+
+def evaluate_cost(problem: BundleProblem, state: AdjustmentState) -> float:
+    """Half the weighted sum of squared residuals of all observations."""
+    r = image_residuals(problem, state)
+    c = float(np.sum(r * r))
+    pt = prior_terms(problem, state.points)
+    if pt is not None:
+        c += float(np.sum(pt[1] ** 2))
+    for t, e in zip(problem.terms, split_extra(problem, state.extra)):
+        rx, _ = t.linearize(state.cam_params, e)
+        c += float(rx @ rx)
+    return 0.5 * c
+
+
+def split_extra(problem, extra):
+    out, s = [], 0
+    for t in problem.terms:
+        out.append(extra[s:s + t.n_extra])
+        s += t.n_extra
+    return out
+
+
+class Terms:
+    """Concatenates the camera-level terms into one whitened residual vector and Jacobian."""
+
+    def __init__(self, problem: BundleProblem):
+        self.problem = problem
+        self.n_cam_red = problem.n_images * problem.model.n_params
+        self.n_extra = sum(t.n_extra for t in problem.terms)
+
+    def linearize(self, cam_params, extra):
+        if not self.problem.terms:
+            return np.zeros(0), None
+        rs, Js, s = [], [], 0
+        for t in self.problem.terms:
+            r, J = t.linearize(cam_params, extra[s:s + t.n_extra])
+            # each term's Jacobian uses [cams | its own extras]; map its extras to the global slot
+            J = sp.csr_matrix(J)
+            Jc = J[:, :self.n_cam_red]
+            Je = J[:, self.n_cam_red:]
+            pad_l = sp.csr_matrix((J.shape[0], s))
+            pad_r = sp.csr_matrix((J.shape[0], self.n_extra - s - t.n_extra))
+            Js.append(sp.hstack([Jc, pad_l, Je, pad_r], format="csr"))
+            rs.append(r)
+            s += t.n_extra
+        return np.concatenate(rs), sp.vstack(Js, format="csr")
+
+
+def _model_linearize(problem: BundleProblem, state: AdjustmentState):
+    o = problem.obs
+    m = problem.model
+    if hasattr(m, "linearize_indexed"):  # no (n_obs, 3) gather of the points
+        return m.linearize_indexed(state.cam_params, o.cam_idx, state.points, o.pt_idx)
+    return m.linearize(state.cam_params, o.cam_idx, state.points[o.pt_idx])
+
+
+def linearize(problem: BundleProblem, state: AdjustmentState, structure: SchurStructure, terms: Terms,
+              fixed_pt: NDArray) -> Linearization:
+    """Residuals, Jacobians and normal-equation blocks at ``state`` (all observations at once)."""
+    o = problem.obs
+    x, Jc, Jp = _model_linearize(problem, state)
+    ws = np.sqrt(state.obs_weight)[:, None] / o.sigma        # (n, 2) sqrt of weights
+    # whitened in place (fresh, writable, contiguous float arrays from the model; copied otherwise)
+    Ac = np.require(Jc, np.float64, ["C", "W"])
+    Ap = np.require(Jp, np.float64, ["C", "W"])
+    r, cost = whiten(np.ascontiguousarray(x, np.float64), o.xy, ws, Ac, Ap, problem.cam_param_free, fixed_pt,
+                     structure.cam_idx, structure.pt_idx)
+    U, V, W, gc, gp = normal_blocks(Ac, Ap, r, structure.cam_idx, structure.pt_idx, structure.n_cam,
+                                    structure.n_pt, want_W=not structure.compiled)
+    gc = gc.ravel()
+    pt = prior_terms(problem, state.points)
+    if pt is not None:
+        idx, rr, Wp = pt
+        np.add.at(V, idx, np.einsum("kji,kjl->kil", Wp, Wp))
+        np.add.at(gp, idx, np.einsum("kji,kj->ki", Wp, rr))
+        cost += float(np.sum(rr * rr))
+    # fixed points: identity placeholder keeps V invertible; they do not move
+    V[fixed_pt] = np.eye(3)
+    gp[fixed_pt] = 0.0
+    rx, Jx = terms.linearize(state.cam_params, state.extra)
+    n_red = terms.n_cam_red + terms.n_extra
+    if Jx is not None:
+        Nx = (Jx.T @ Jx).tocsr()
+        gx = Jx.T @ rx
+        cost += float(rx @ rx)
+    else:
+        Nx, gx = None, np.zeros(n_red)
+    return Linearization(r, Ac, Ap, U, V, W, gc, gp, rx, Jx, Nx, gx, 0.5 * cost,
+                         pt[1] if pt is not None else None)
+
+
+def reduced_system(lin: Linearization, structure: SchurStructure, terms: Terms, mu: float, free_red: NDArray):
+    """Damped reduced camera system.
+
+    Returns ``S`` (CSR, free unknowns only), its right-hand side, the damped point inverses
+    ``(V + mu D_p)^-1 (n_pt, 3, 3)`` and the damping diagonal ``D`` of the reduced unknowns
+    (all of them, free or not; the damping added is ``mu * D``).
+    """
+    p = structure.p
+    if structure.compiled:
+        blocks, Fg, Vinv = structure.schur(lin.U, lin.V, lin.Ac, lin.Ap, lin.gp, mu)
+        rhs_c = -lin.gc + Fg.ravel()
+    else:
+        V = lin.V.copy()
+        dV = np.clip(np.diagonal(lin.V, axis1=1, axis2=2), 1e-6, 1e32)
+        V[:, [0, 1, 2], [0, 1, 2]] += mu * dV
+        Vinv = inv_sym3(V)
+        F = np.matmul(lin.W, Vinv[structure.pt_of_obs])                               # W_i V_j^-1, (n_obs, p, 3)
+        # Schur complement S = U - W V^-1 W^T (pair blocks), rhs = -g_c + W V^-1 g_p
+        blocks = -structure.pair_blocks(F, lin.W)
+        blocks[structure.diag_block] += lin.U
+        Fg = np.einsum("nij,nj->ni", F, lin.gp[structure.pt_of_obs])
+        rhs_c = -lin.gc + (structure.cam_agg @ Fg).ravel()
+    n_cam_red = terms.n_cam_red
+    diag = np.zeros(n_cam_red + terms.n_extra)
+    diag[:n_cam_red] = np.diagonal(lin.U, axis1=1, axis2=2).ravel()
+    if lin.Nx is not None:
+        diag += lin.Nx.diagonal()
+    D = np.clip(diag, 1e-6, 1e32)
+    rhs = np.concatenate([rhs_c, np.zeros(terms.n_extra)]) - lin.gx
+    if not terms.n_extra and lin.Nx is None:
+        # camera damping straight into the diagonal blocks: no sparse sum
+        if mu != 0.0:
+            db = blocks[structure.diag_block]
+            db[:, np.arange(p), np.arange(p)] += mu * D.reshape(-1, p)
+            blocks[structure.diag_block] = db
+        S = structure.assemble(blocks)
+    else:
+        S = structure.assemble(blocks)
+        if terms.n_extra:
+            S = sp.bmat([[S, None], [None, sp.csr_matrix((terms.n_extra, terms.n_extra))]], format="csr")
+        if lin.Nx is not None:
+            S = (S + lin.Nx).tocsr()
+        S = (S + sp.diags(mu * D)).tocsr()
+    if not free_red.all():
+        idx = np.nonzero(free_red)[0]
+        S = S[idx][:, idx]
+        rhs = rhs[idx]
+    return S, rhs, Vinv, D
+
+
+def back_substitute(lin: Linearization, structure: SchurStructure, Vinv: NDArray, dred: NDArray, terms: Terms,
+                    problem: BundleProblem) -> NDArray:
+    """Point corrections ``dp_j = V_j^-1 (-g_p,j - sum_i W_i^T dc_cam(i))``, ``(n_pt, 3)``."""
+    p = structure.p
+    o = problem.obs
+    dc = dred[:terms.n_cam_red].reshape(-1, p)
+    if structure.compiled:
+        return structure.back_substitute(lin.Ac, lin.Ap, Vinv, lin.gp, dc)
+    Wdc = np.einsum("nij,ni->nj", lin.W, dc[o.cam_idx])
+    t = -lin.gp - structure.pt_agg @ Wdc
+    return np.einsum("nij,nj->ni", Vinv, t)

@@ -1,0 +1,562 @@
+"""Correction parameters of sensor models, with analytic partials: what the adjustment estimates.
+
+Frame camera (:class:`FrameCorrections`), 6 parameters ``[w (3), c (3)]``::
+
+    v = exp([w]x) R^T (X - P - c)
+
+``R`` rotates sensor-frame vectors into the body-fixed frame and ``P`` is the sensor position
+(metres) of the camera's exterior orientation at its exposure time; ``w`` is a small rotation
+in the sensor frame (radians), ``c`` a position offset (metres, body-fixed). The sensor-frame
+vector ``v`` is projected by the pinhole ``(x, y) = f (v_x, v_y) / v_z`` (millimetres), distorted
+by the camera's distortion model and mapped to pixels by the interior orientation's affine
+``focal2pixel`` transform, exactly as :meth:`FrameCamera.ground_to_image` does.
+
+Line-scan camera (:class:`LineScanCorrections`), ``6 (degree + 1)`` parameters
+``[w_0, c_0, w_1, c_1, ...]``: the same with ``w(tau) = sum_k w_k tau^k`` and
+``c(tau) = sum_k c_k tau^k``, ``tau = (t - t_mid) / t_half`` in [-1, 1] over the image lines.
+A ground point is imaged at the time ``t`` whose projection falls on the detector line (image
+line coordinate 0 of the projection, see :mod:`lunarmap.camera.linescan`); the partials follow
+the implicit-function rule ``dt/dp = -(dr/dp) / (dr/dt)``.
+
+Any sensor (:class:`AffineCorrections`), 6 image-space affine parameters (LROC multi-image
+study, ``seeds/001`` Eq. 13)::
+
+    line   = r' + a0 + a1 (c' - c_0) + a2 (r' - r_0)
+    sample = c' + b0 + b1 (c' - c_0) + b2 (r' - r_0)
+
+with ``(r', c')`` the sensor's own projection; the RFM's default origin ``(r_0, c_0)`` is its
+line/sample offset (image centre).
+
+Partial derivatives are analytic at fixed time, through the distortion
+(:meth:`~lunarmap.camera.distortion.Distortion.distort_with_jacobian`); the tests compare them
+with central finite differences.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import ConvergenceError, InvalidInputError
+from ..orientation.exterior import ExteriorOrientation
+from ..orientation.rotation import left_jacobian, matrix_to_quat, quat_to_matrix, rotvec_to_matrix, skew
+from .distortion import Distortion
+from .interior import InteriorOrientation
+
+__all__ = ["FrameCorrections", "LineScanCorrections", "AffineCorrections", "AffineCorrectedSensor",
+           "FrameStack", "pinhole_image"]
+
+Array = NDArray[np.float64]
+
+_EO_NAMES = ("w_x", "w_y", "w_z", "c_x", "c_y", "c_z")
+_EO_UNITS = ("rad", "rad", "rad", "m", "m", "m")
+_NEWTON_MAX = 40
+# Line-scan time solution: steps below this (lines) stop the iteration. The residual itself is
+# only known to ~1e-9 line (a body-fixed coordinate near 1.7e6 m carries ~2e-10 m of rounding).
+_LINE_TOL = 5e-9
+_DT = 1e-4            # s, central difference of dr/dt (1e-3 s left 3e-6 relative error on a 6.5-ms-line camera)
+
+
+def _xyz(xyz: ArrayLike) -> Array:
+    a = np.asarray(xyz, dtype=float)
+    if a.ndim != 2 or a.shape[1] != 3:
+        a = a.reshape(-1, 3)
+    if not np.all(np.isfinite(a)):
+        raise InvalidInputError(f"{int(np.sum(~np.all(np.isfinite(a), axis=1)))} ground point(s) hold NaN or "
+                                "infinite coordinates")
+    return a
+
+
+def _params(params: ArrayLike, n: int, what: str) -> Array:
+    p = np.asarray(params, dtype=float).reshape(-1)
+    if p.size != n:
+        raise InvalidInputError(f"{what} takes {n} correction parameters, got {p.size}")
+    if not np.all(np.isfinite(p)):
+        raise InvalidInputError(f"{what}: correction parameters hold NaN or infinite values")
+    return p
+
+
+def _pixel_affine(io: InteriorOrientation) -> tuple[Array, Array]:
+    """``A (2, 2)``, ``b (2,)``: ``(line, sample) = A (x, y) + b`` for distorted focal-plane mm."""
+    il, is_ = io.focal2pixel_lines, io.focal2pixel_samples
+    A = np.array([[il[1] / io.line_summing, il[2] / io.line_summing],
+                  [is_[1] / io.sample_summing, is_[2] / io.sample_summing]])
+    b = np.array([(il[0] + io.detector_center_line - io.starting_detector_line) / io.line_summing,
+                  (is_[0] + io.detector_center_sample - io.starting_detector_sample) / io.sample_summing])
+    return A, b
+
+
+def pinhole_image(v: Array, f: Array, distortion: Distortion | Sequence[tuple[Distortion, NDArray[np.bool_]]],
+                  A: Array, b: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
+    """Image coordinates of sensor-frame vectors and their partials with respect to the vectors.
+
+    Parameters
+    ----------
+    v : ndarray (n, 3)
+        Sensor-frame vectors towards the ground points (any length; boresight +z).
+    f : ndarray (n,) or float
+        Focal length, millimetres.
+    distortion : Distortion, or sequence of (Distortion, mask (n,))
+        The distortion model (one for all rows, or one per group of rows).
+    A, b : ndarray (n, 2, 2) / (2, 2) and (n, 2) / (2,)
+        Distorted focal plane (mm) to ``(line, sample)`` pixels: ``A (x, y) + b``.
+    jacobian : bool
+        Also return ``d(line, sample) / d v`` ``(n, 2, 3)``, pixels per unit of ``v``.
+
+    Returns
+    -------
+    pix : ndarray (n, 2)
+        ``(line, sample)`` pixels; NaN for vectors behind the sensor or outside the distortion
+        model's domain.
+    jac : ndarray (n, 2, 3) or None
+    """
+    n = v.shape[0]
+    f = np.broadcast_to(np.asarray(f, dtype=float), (n,))
+    in_front = v[:, 2] > 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        iz = np.where(in_front, 1.0 / v[:, 2], np.nan)
+    ux = f * v[:, 0] * iz
+    uy = f * v[:, 1] * iz
+    groups = [(distortion, np.ones(n, dtype=bool))] if isinstance(distortion, Distortion) else distortion
+    dx = np.empty(n)
+    dy = np.empty(n)
+    jd = np.empty((n, 2, 2)) if jacobian else None
+    for dist, m in groups:
+        if not np.any(m):
+            continue
+        if jacobian:
+            dx[m], dy[m], jd[m] = dist.distort_with_jacobian(ux[m], uy[m])   # type: ignore[index]
+        else:
+            dx[m], dy[m] = dist.distort(ux[m], uy[m])
+    A = np.asarray(A, dtype=float)
+    d = np.stack([dx, dy], axis=-1)
+    pix = (np.einsum("nij,nj->ni", A, d) if A.ndim == 3 else d @ A.T) + b
+    if not jacobian:
+        return pix, None
+    # d(ux, uy)/dv = f / v_z [[1, 0, -v_x / v_z], [0, 1, -v_y / v_z]]
+    dp = np.zeros((n, 2, 3))
+    fz = f * iz
+    dp[:, 0, 0] = fz
+    dp[:, 1, 1] = fz
+    dp[:, 0, 2] = -ux * iz
+    dp[:, 1, 2] = -uy * iz
+    ajd = np.einsum("nij,njk->nik", A, jd) if A.ndim == 3 else np.einsum("ij,njk->nik", A, jd)
+    return pix, np.einsum("nij,njk->nik", ajd, dp)
+
+
+def _eo_partials(dpix_dv: Array, v: Array, M: Array, w: Array) -> tuple[Array, Array, Array]:
+    """``d/dX``, ``d/dc``, ``d/dw`` of image coordinates with ``v = exp([w]x) R^T (X - P - c)``, ``M = exp([w]x) R^T``."""
+    d_x = np.einsum("nij,njk->nik", dpix_dv, M)
+    # dv/dw = -[v]x J_l(w)  (left perturbation of exp([w]x))
+    d_w = np.einsum("nij,njk->nik", dpix_dv, -skew(v) @ left_jacobian(w))
+    return d_x, -d_x, d_w
+
+
+# -- frame cameras ------------------------------------------------------------------------------
+
+class FrameStack:
+    """Vectorised projection and partials of many frame cameras' corrections at once.
+
+    Observations of all images are evaluated in one pass (the adjustment of a block of hundreds
+    of frame images would otherwise be dominated by per-image Python overhead); images sharing a
+    distortion model (same class and coefficients) share its evaluation.
+    """
+
+    def __init__(self, items: Sequence["FrameCorrections"]) -> None:
+        self.items = list(items)
+        cams = [c.sensor for c in self.items]
+        self.P = np.array([c._position for c in cams]).reshape(-1, 3)
+        self.Rt = np.array([c._rotation.T for c in cams]).reshape(-1, 3, 3)   # body -> sensor
+        self.f = np.array([c.interior.focal_length for c in cams], dtype=float)
+        ab = [_pixel_affine(c.interior) for c in cams]
+        self.A = np.array([a for a, _ in ab]).reshape(-1, 2, 2)
+        self.b = np.array([b for _, b in ab]).reshape(-1, 2)
+        keys: dict[str, int] = {}
+        self.dist_of = np.empty(len(cams), dtype=np.int64)
+        self.distortions: list[Distortion] = []
+        for i, c in enumerate(cams):
+            k = f"{type(c.distortion).__name__}:{c.distortion!r}"
+            if k not in keys:
+                keys[k] = len(self.distortions)
+                self.distortions.append(c.distortion)
+            self.dist_of[i] = keys[k]
+
+    def partials(self, params: Array, idx: NDArray[np.int64], X: Array, jacobian: bool = True
+                 ) -> tuple[Array, Array | None, Array | None]:
+        """Pixels ``(n, 2)``, ``d/d params (n, 2, 6)``, ``d/dX (n, 2, 3)`` of observations of images ``idx``.
+
+        ``params (n_images, >= 6)``: the first 6 columns are ``[w, c]`` of each stacked image.
+        """
+        params = np.asarray(params, dtype=float)
+        w_img = params[:, 0:3]
+        M_img = rotvec_to_matrix(w_img) @ self.Rt            # exp([w]x) R^T per image
+        M = M_img[idx]
+        d = X - self.P[idx] - params[idx, 3:6]
+        v = np.einsum("nij,nj->ni", M, d)
+        dist_idx = self.dist_of[idx]
+        groups = [(dist, dist_idx == k) for k, dist in enumerate(self.distortions)]
+        pix, dv = pinhole_image(v, self.f[idx], groups, self.A[idx], self.b[idx], jacobian)
+        if not jacobian:
+            return pix, None, None
+        d_x, d_c, d_w = _eo_partials(dv, v, M, w_img[idx])  # type: ignore[arg-type]
+        jc = np.concatenate([d_w, d_c], axis=2)
+        return pix, jc, d_x
+
+
+class FrameCorrections:
+    """Six exterior-orientation corrections of a :class:`~lunarmap.camera.FrameCamera` (module docstring).
+
+    Parameters
+    ----------
+    camera : FrameCamera
+        The reference camera (for an adjustment: its navigation orientation).
+
+    Raises
+    ------
+    DistortionPartialsError
+        The camera's distortion model has no partial derivatives.
+    """
+
+    names = _EO_NAMES
+    units = _EO_UNITS
+    n_params = 6
+
+    def __init__(self, camera: Any) -> None:
+        camera.distortion.undistort_jacobian(0.0, 0.0)   # a model without partials fails here, by name
+        self.sensor = camera
+        self._stack: FrameStack | None = None
+
+    def __repr__(self) -> str:
+        return f"FrameCorrections({self.sensor!r})"
+
+    def _one(self) -> FrameStack:
+        if self._stack is None:
+            self._stack = FrameStack([self])
+        return self._stack
+
+    def project(self, params: ArrayLike, xyz: ArrayLike) -> Array:
+        p = _params(params, 6, "FrameCorrections")
+        X = _xyz(xyz)
+        return self._one().partials(p[None, :], np.zeros(X.shape[0], np.int64), X, jacobian=False)[0]
+
+    def partials(self, params: ArrayLike, xyz: ArrayLike) -> tuple[Array, Array, Array]:
+        p = _params(params, 6, "FrameCorrections")
+        X = _xyz(xyz)
+        pix, jc, jx = self._one().partials(p[None, :], np.zeros(X.shape[0], np.int64), X)
+        return pix, jc, jx  # type: ignore[return-value]
+
+    def apply(self, params: ArrayLike) -> Any:
+        """A new :class:`FrameCamera` whose EO carries the corrections (at every EO sample)."""
+        from .frame import FrameCamera
+
+        p = _params(params, 6, "FrameCorrections")
+        cam = self.sensor
+        E = rotvec_to_matrix(p[0:3])
+        eo = cam.eo
+        R = quat_to_matrix(eo.quaternions) @ E.T        # R' = R exp([w]x)^T, so R'^T = exp([w]x) R^T
+        new = _replace_eo(eo, eo.positions + p[3:6], eo.velocities, matrix_to_quat(R), "frame EO corrections")
+        return FrameCamera(cam.interior, new, cam.shape, time=cam.time)
+
+    @staticmethod
+    def stack(items: Sequence["FrameCorrections"]) -> FrameStack:
+        """Evaluate many frame cameras' corrections in one vectorised pass."""
+        return FrameStack(items)
+
+
+def _replace_eo(eo: ExteriorOrientation, positions: Array, velocities: Array, quaternions: Array,
+                note: str) -> ExteriorOrientation:
+    return ExteriorOrientation(epoch=eo.epoch, times=eo.times, positions=positions, velocities=velocities,
+                               quaternions=quaternions, sun_times=eo.sun_times, sun_positions=eo.sun_positions,
+                               body_frame=eo.body_frame, attrs={**eo.attrs, "corrected": note})
+
+
+# -- line-scan cameras --------------------------------------------------------------------------
+
+class LineScanCorrections:
+    """Position and attitude corrections of a :class:`~lunarmap.camera.LineScanCamera`, polynomials in time.
+
+    Parameters
+    ----------
+    camera : LineScanCamera
+        The reference camera (for an adjustment: its navigation orientation).
+    degree : int
+        Polynomial degree 0, 1 or 2 in normalised image time ``tau``.
+
+    Notes
+    -----
+    Polynomial attitude and position corrections of a narrow-angle camera are strongly
+    correlated: give them a-priori sigmas (navigation observations) or fix some.
+    """
+
+    def __init__(self, camera: Any, degree: int = 1) -> None:
+        if degree not in (0, 1, 2):
+            raise InvalidInputError(f"line-scan correction degree must be 0, 1 or 2, got {degree!r}")
+        camera.distortion.undistort_jacobian(0.0, 0.0)
+        self.sensor = camera
+        self.degree = int(degree)
+        self.n_params = 6 * (self.degree + 1)
+        self.names = tuple(f"{q}{ax}_{k}" for k in range(self.degree + 1) for q in ("w", "c") for ax in "xyz")
+        self.units = tuple(u for _ in range(self.degree + 1) for u in _EO_UNITS)
+        t0, t1 = camera.image_time(np.array([0.0, float(camera.interior.n_lines)]))
+        self.t_mid = 0.5 * float(t0 + t1)
+        self.t_half = 0.5 * abs(float(t1 - t0))
+        if not self.t_half > 0.0:
+            raise InvalidInputError("line-scan corrections need an image spanning a positive time interval")
+        self._A, self._b = _pixel_affine(camera.interior)
+
+    def __repr__(self) -> str:
+        return f"LineScanCorrections({self.sensor!r}, degree={self.degree})"
+
+    def tau(self, t: ArrayLike) -> Array:
+        """Normalised image time (dimensionless, -1 .. 1 over the image) of times ``t`` (s after ``eo.epoch``)."""
+        return (np.asarray(t, dtype=float) - self.t_mid) / self.t_half
+
+    def _geometry(self, p: Array, X: Array, t: Array, jacobian: bool):
+        cam = self.sensor
+        tau = self.tau(t)
+        powers = tau[:, None] ** np.arange(self.degree + 1)[None, :]           # (n, d+1)
+        P = p.reshape(self.degree + 1, 2, 3)                                   # [k, (w, c), xyz]
+        w = powers @ P[:, 0, :]
+        dC = powers @ P[:, 1, :]
+        Rt = np.swapaxes(cam.eo.rotation_at(t), -1, -2)                        # body -> sensor
+        M = rotvec_to_matrix(w) @ Rt
+        v = np.einsum("nij,nj->ni", M, X - cam.eo.position_at(t) - dC)
+        pix, dv = pinhole_image(v, cam.interior.focal_length, cam.distortion, self._A, self._b, jacobian)
+        return pix, dv, v, M, w, powers
+
+    def _residual(self, p: Array, X: Array, t: Array) -> Array:
+        # the projection's image-line coordinate: 0 on the detector line (the image line is time)
+        return self._geometry(p, X, t, False)[0][:, 0]
+
+    def _solve_time(self, p: Array, X: Array) -> Array:
+        cam = self.sensor
+        with np.errstate(invalid="ignore"):
+            start, _ = cam.ground_to_image(X, on_miss="nan", within_image=False)
+        t = np.where(np.isfinite(start), cam.image_time(np.where(np.isfinite(start), start, 0.0)), self.t_mid)
+        rate = float(np.min(np.abs(cam.line_times.rates)))
+        r = self._residual(p, X, t)
+        slope = (self._residual(p, X, t + _DT) - self._residual(p, X, t - _DT)) / (2.0 * _DT)
+        act = np.arange(X.shape[0])
+        for _ in range(_NEWTON_MAX):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                step = r / slope
+            t[act] -= step
+            small = np.abs(step) < _LINE_TOL * rate
+            keep = ~small & np.isfinite(step)
+            act, slope = act[keep], slope[keep]
+            if act.size == 0:
+                return t
+            r = self._residual(p, X[act], t[act])
+        raise ConvergenceError(f"line-scan corrections: ground-to-image did not converge for {act.size} of "
+                               f"{X.shape[0]} point(s) of {self.sensor.interior.name or 'the image'}")
+
+    def project(self, params: ArrayLike, xyz: ArrayLike) -> Array:
+        p = _params(params, self.n_params, "LineScanCorrections")
+        X = _xyz(xyz)
+        t = self._solve_time(p, X)
+        pix = self._geometry(p, X, t, False)[0]
+        return np.column_stack([self.sensor.line_times.line(t), pix[:, 1]])
+
+    def partials(self, params: ArrayLike, xyz: ArrayLike) -> tuple[Array, Array, Array]:
+        p = _params(params, self.n_params, "LineScanCorrections")
+        X = _xyz(xyz)
+        n = X.shape[0]
+        t = self._solve_time(p, X)
+        pix, dv, v, M, w, powers = self._geometry(p, X, t, True)
+        d_x, d_c, d_w = _eo_partials(dv, v, M, w)
+        d_p = np.empty((n, 2, self.n_params))
+        for k in range(self.degree + 1):
+            d_p[:, :, 6 * k:6 * k + 3] = d_w * powers[:, k, None, None]
+            d_p[:, :, 6 * k + 3:6 * k + 6] = d_c * powers[:, k, None, None]
+        # implicit time: r(t, p, X) = 0
+        plus = self._geometry(p, X, t + _DT, False)[0]
+        minus = self._geometry(p, X, t - _DT, False)[0]
+        drs_dt = (plus - minus) / (2.0 * _DT)                                  # (n, 2)
+        dt_dp = -d_p[:, 0, :] / drs_dt[:, :1]
+        dt_dx = -d_x[:, 0, :] / drs_dt[:, :1]
+        lt = self.sensor.line_times
+        dl_dt = 1.0 / lt.rates[lt._segment(lt.line(t))]
+        jc = np.empty_like(d_p)
+        jx = np.empty_like(d_x)
+        jc[:, 0] = dl_dt[:, None] * dt_dp
+        jx[:, 0] = dl_dt[:, None] * dt_dx
+        jc[:, 1] = d_p[:, 1] + drs_dt[:, 1:] * dt_dp
+        jx[:, 1] = d_x[:, 1] + drs_dt[:, 1:] * dt_dx
+        return np.column_stack([lt.line(t), pix[:, 1]]), jc, jx
+
+    def apply(self, params: ArrayLike) -> Any:
+        """A new :class:`LineScanCamera` whose EO samples carry the corrections.
+
+        The corrected EO is sampled at the original EO's times; its interpolation then follows
+        the corrected trajectory as closely as the original follows its own (corrections are
+        low-order polynomials in time).
+        """
+        from .linescan import LineScanCamera
+
+        p = _params(params, self.n_params, "LineScanCorrections")
+        cam = self.sensor
+        eo = cam.eo
+        tau = self.tau(eo.times)
+        k = np.arange(self.degree + 1)
+        powers = tau[:, None] ** k[None, :]
+        dpow = np.where(k[None, :] > 0, k[None, :] * tau[:, None] ** np.maximum(k - 1, 0)[None, :], 0.0) \
+            / self.t_half
+        P = p.reshape(self.degree + 1, 2, 3)
+        w = powers @ P[:, 0, :]
+        E = rotvec_to_matrix(w)
+        R = quat_to_matrix(eo.quaternions) @ np.swapaxes(E, -1, -2)
+        new = _replace_eo(eo, eo.positions + powers @ P[:, 1, :], eo.velocities + dpow @ P[:, 1, :],
+                          matrix_to_quat(R), f"line-scan EO corrections, degree {self.degree}")
+        return LineScanCamera(cam.interior, new, cam.shape, line_times=cam.line_times, workers=cam.workers)
+
+
+# -- affine image-space corrections (RFMs, or any sensor) ---------------------------------------
+
+_AFFINE_NAMES = ("a0", "a1", "a2", "b0", "b1", "b2")
+
+
+def apply_affine(params: Array, rc: Array, origin: Array) -> Array:
+    """Eq. 13 of ``seeds/001`` forward: pixels from ``(r', c') (n, 2)`` and affine ``params (n, 6)`` or ``(6,)``."""
+    params = np.broadcast_to(params, (rc.shape[0], 6))
+    d = rc - origin
+    line = rc[:, 0] + params[:, 0] + params[:, 1] * d[:, 1] + params[:, 2] * d[:, 0]
+    samp = rc[:, 1] + params[:, 3] + params[:, 4] * d[:, 1] + params[:, 5] * d[:, 0]
+    return np.column_stack([line, samp])
+
+
+def _affine_matrix(p: Array) -> Array:
+    """``d(line, sample) / d(r', c')`` of the affine correction."""
+    return np.array([[1.0 + p[2], p[1]], [p[5], 1.0 + p[4]]])
+
+
+class AffineCorrections:
+    """Six affine image-space corrections of any sensor model (module docstring; ``seeds/001`` Eq. 13).
+
+    Parameters
+    ----------
+    sensor : SensorModel
+        The corrected sensor (an RFM in the LROC study).
+    origin : (float, float)
+        ``(r_0, c_0)``, pixels: the origin of the affine slopes.
+    """
+
+    names = _AFFINE_NAMES
+    units = ("px", "1", "1", "px", "1", "1")
+    n_params = 6
+
+    def __init__(self, sensor: Any, origin: tuple[float, float] = (0.0, 0.0)) -> None:
+        self.sensor = sensor
+        self.origin = np.asarray(origin, dtype=float).reshape(2)
+        if not np.all(np.isfinite(self.origin)):
+            raise InvalidInputError("affine correction origin must be finite pixels")
+
+    def __repr__(self) -> str:
+        return f"AffineCorrections({self.sensor!r}, origin={tuple(self.origin)})"
+
+    def project(self, params: ArrayLike, xyz: ArrayLike) -> Array:
+        p = _params(params, 6, "AffineCorrections")
+        X = _xyz(xyz)
+        li, sa = self.sensor.ground_to_image(X, on_miss="nan", within_image=False)
+        return apply_affine(p, np.column_stack([li, sa]), self.origin)
+
+    def partials(self, params: ArrayLike, xyz: ArrayLike) -> tuple[Array, Array, Array]:
+        p = _params(params, 6, "AffineCorrections")
+        X = _xyz(xyz)
+        li, sa, jac = self.sensor.ground_partials(X)
+        rc = np.column_stack([li, sa])
+        d = rc - self.origin
+        n = X.shape[0]
+        jc = np.zeros((n, 2, 6))
+        jc[:, 0, 0] = 1.0
+        jc[:, 0, 1] = d[:, 1]
+        jc[:, 0, 2] = d[:, 0]
+        jc[:, 1, 3] = 1.0
+        jc[:, 1, 4] = d[:, 1]
+        jc[:, 1, 5] = d[:, 0]
+        return apply_affine(p, rc, self.origin), jc, np.einsum("ij,njk->nik", _affine_matrix(p), jac)
+
+    def apply(self, params: ArrayLike) -> "AffineCorrectedSensor":
+        return AffineCorrectedSensor(self.sensor, _params(params, 6, "AffineCorrections"), self.origin)
+
+
+@dataclass(frozen=True, eq=False)
+class AffineCorrectedSensor:
+    """A sensor model followed by an affine image-space correction (the adjusted form of an RFM).
+
+    Parameters
+    ----------
+    base : SensorModel
+        The uncorrected model.
+    params : ndarray (6,)
+        ``[a0, a1, a2, b0, b1, b2]`` (pixels and dimensionless), see :class:`AffineCorrections`.
+    origin : ndarray (2,)
+        Origin of the affine slopes, pixels.
+    """
+
+    base: Any
+    params: Array
+    origin: Array
+
+    @property
+    def n_lines(self) -> int:
+        return int(self.base.n_lines)
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.base.n_samples)
+
+    @property
+    def reference_radius(self) -> float:
+        return float(self.base.reference_radius)
+
+    def __repr__(self) -> str:
+        return f"AffineCorrectedSensor({self.base!r}, params={np.round(self.params, 9).tolist()})"
+
+    def _to_base(self, line: ArrayLike, sample: ArrayLike) -> tuple[Array, Array]:
+        line, sample = np.broadcast_arrays(np.asarray(line, dtype=float), np.asarray(sample, dtype=float))
+        p, o = self.params, self.origin
+        rhs = np.stack([line - p[0] + p[2] * o[0] + p[1] * o[1], sample - p[3] + p[5] * o[0] + p[4] * o[1]], -1)
+        rc = np.linalg.solve(_affine_matrix(p), rhs.reshape(-1, 2).T).T.reshape(rhs.shape)
+        return rc[..., 0], rc[..., 1]
+
+    def ground_to_image(self, xyz: ArrayLike, on_miss: str = "nan", within_image: bool = True
+                        ) -> tuple[Array, Array]:
+        xyz = np.asarray(xyz, dtype=float)
+        li, sa = self.base.ground_to_image(xyz, on_miss=on_miss, within_image=False)
+        shape = np.shape(li)
+        out = apply_affine(self.params, np.column_stack([np.ravel(li), np.ravel(sa)]), self.origin)
+        line, sample = out[:, 0].reshape(shape), out[:, 1].reshape(shape)
+        if within_image and self.n_lines > 0 and self.n_samples > 0:
+            tol = 1e-6
+            inside = (line >= -tol) & (line <= self.n_lines + tol) & (sample >= -tol) & (sample <= self.n_samples + tol)
+            if on_miss == "raise" and not np.all(inside):
+                from ..errors import GeometryError
+
+                raise GeometryError(f"{int(np.sum(~inside))} ground point(s) fall outside the image")
+            line, sample = np.where(inside, line, np.nan), np.where(inside, sample, np.nan)
+        return line, sample
+
+    def image_to_ground(self, line: ArrayLike, sample: ArrayLike, height: ArrayLike = 0.0, dtm: Any = None,
+                        on_miss: str = "raise") -> Array:
+        r, c = self._to_base(line, sample)
+        return self.base.image_to_ground(r, c, height=height, dtm=dtm, on_miss=on_miss)
+
+    def rays(self, line: ArrayLike, sample: ArrayLike) -> tuple[Array, Array]:
+        return self.base.rays(*self._to_base(line, sample))
+
+    def look_vector(self, line: ArrayLike, sample: ArrayLike) -> Array:
+        return self.rays(line, sample)[1]
+
+    def ground_partials(self, xyz: ArrayLike) -> tuple[Array, Array, Array]:
+        li, sa, jac = self.base.ground_partials(xyz)
+        shape = np.shape(li)
+        out = apply_affine(self.params, np.column_stack([np.ravel(li), np.ravel(sa)]), self.origin)
+        return (out[:, 0].reshape(shape), out[:, 1].reshape(shape),
+                np.einsum("ij,...jk->...ik", _affine_matrix(self.params), jac))
+
+    def corrections(self, degree: int | None = None) -> AffineCorrections:
+        """Further affine corrections on top of this one (same origin)."""
+        return AffineCorrections(self, tuple(self.origin))

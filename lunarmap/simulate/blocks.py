@@ -1,0 +1,336 @@
+"""Simulated adjustment blocks with known truth: cameras, navigation errors, points and measurements.
+
+Everything here is plain data (cameras, arrays): the tests, benchmarks and demos build their
+adjustment problems from it with the public :mod:`lunarmap.adjust` API, like any user.
+
+* :func:`frame_block` -- the DLR paper's simulation set-up (``seeds/004``): a Clementine-UVVIS-like
+  framing camera (384 x 288 pixels of 23 um, f = 90 mm, ``radial`` OD_K distortion) on several
+  parallel north-bound orbits at ``altitude``, nadir looking, 60 % forward and 30 % side overlap,
+  navigation with per-orbit offsets and drifts plus white noise;
+* :func:`linescan_site` -- the LROC multi-image set-up (``seeds/001``): NAC-like pushbroom cameras
+  (``lrolrocnac`` distortion) on polar orbits rolled to look at one site, navigation with a position
+  error, an attitude bias and an attitude drift per image.
+
+Navigation errors are expressed in the sensors' correction parameters
+(:mod:`lunarmap.camera.corrections`): the navigation camera ``nav`` and the true camera satisfy
+``true = nav.corrections().apply(true_params)``, so ``true_params`` is what an adjustment
+starting from the navigation must find. Image measurements are projections of the true points by
+the TRUE cameras (the rigorous models, not the adjustment's equations) plus Gaussian noise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..camera import FrameCamera, InteriorOrientation, LineScanCamera, Shape
+from ..camera.geodesy import enu_basis, lonlat_height_to_xyz, xyz_to_lonlat_height
+from ..camera.shape import MOON_RADIUS
+from ..errors import InvalidInputError, SimulationWarning, warn
+from ..orientation.exterior import ExteriorOrientation
+from ..orientation.rotation import matrix_to_quat, quat_to_matrix, rotvec_to_matrix
+from .orbits import NAC_LINE_TIME, nac_like_interior, polar_orbit_eo
+
+__all__ = ["Measurements", "SimulatedBlock", "frame_block", "linescan_site", "local_enu", "observe"]
+
+Array = NDArray[np.float64]
+
+
+@dataclass
+class Measurements:
+    """Image measurements: image index, point index, ``(line, sample)`` pixels and their sigma (pixels)."""
+
+    cam_idx: NDArray[np.int64]
+    pt_idx: NDArray[np.int64]
+    xy: Array
+    sigma: float
+
+
+@dataclass
+class SimulatedBlock:
+    """A simulated block (SI units: metres, radians, seconds, pixels).
+
+    Attributes
+    ----------
+    true_cameras, nav_cameras : list of camera
+        The truth, and the navigation cameras an adjustment starts from.
+    true_params : ndarray (n_img, p)
+        Correction parameters taking each navigation camera to the true one
+        (``nav.corrections(degree).apply(true_params[i])``).
+    true_points : ndarray (n_pt, 3)
+        Body-fixed metres.
+    measurements : Measurements
+        Noisy projections of the true points by the true cameras.
+    orbit : ndarray (n_img,) int
+        Orbit of every image.
+    times : ndarray (n_img,)
+        Image (centre) time, seconds relative to the orbit's mean image time.
+    control, check : int arrays
+        Indices of control points and check points.
+    control_xyz : ndarray (k, 3)
+        Observed control coordinates (truth + noise of ``control_sigma``).
+    control_sigma : float
+        Metres per axis.
+    true_offsets, true_drifts : ndarray (n_orbits, 6)
+        Per-orbit navigation offsets (rad, m) and drifts (rad/s, m/s) in ``[w, c]`` order.
+    nav_sigma : ndarray (6,)
+        White-noise sigma of the navigation per parameter ``[w (rad), c (m)]``.
+    offset_sigma, drift_sigma : ndarray (6,)
+        Sigmas the per-orbit offsets (rad, m) and drifts (rad/s, m/s) were drawn with (for the line-scan
+        site: the per-image attitude drift, rad/s, in ``drift_sigma[:3]``).
+    degree : int
+        Correction degree the truth is expressed in.
+    """
+
+    true_cameras: list
+    nav_cameras: list
+    true_params: Array
+    true_points: Array
+    measurements: Measurements
+    orbit: NDArray[np.int64]
+    times: Array
+    control: NDArray[np.int64]
+    check: NDArray[np.int64]
+    control_xyz: Array
+    control_sigma: float
+    true_offsets: Array = field(default_factory=lambda: np.zeros((0, 6)))
+    true_drifts: Array = field(default_factory=lambda: np.zeros((0, 6)))
+    nav_sigma: Array = field(default_factory=lambda: np.zeros(6))
+    offset_sigma: Array = field(default_factory=lambda: np.zeros(6))
+    drift_sigma: Array = field(default_factory=lambda: np.zeros(6))
+    degree: int = 0
+
+
+def local_enu(xyz: Array) -> Array:
+    """Rows east, north, up (unit vectors) at body-fixed points ``(..., 3)``: ``(..., 3, 3)``."""
+    lon, lat, _ = xyz_to_lonlat_height(xyz)
+    return enu_basis(lon, lat)
+
+
+def observe(cameras: list, X: Array, sigma_px: float, rng: np.random.Generator, n_points: int | None = None,
+            min_rays: int = 2) -> tuple[Measurements, Array, NDArray[np.int64]]:
+    """Noisy measurements of points by cameras (their rigorous ``ground_to_image``).
+
+    Returns the measurements of the first ``n_points`` points seen by at least ``min_rays`` cameras,
+    those points, and their indices in ``X``.
+    """
+    ci, pi, xy = [], [], []
+    for i, cam in enumerate(cameras):
+        li, sa = cam.ground_to_image(X, on_miss="nan")
+        ok = np.isfinite(li) & np.isfinite(sa)
+        ci.append(np.full(int(ok.sum()), i))
+        pi.append(np.flatnonzero(ok))
+        xy.append(np.column_stack([li[ok], sa[ok]]))
+    c, p, v = np.concatenate(ci), np.concatenate(pi), np.concatenate(xy)
+    keep = np.flatnonzero(np.bincount(p, minlength=X.shape[0]) >= min_rays)
+    if n_points is not None:
+        keep = keep[:n_points]
+    remap = -np.ones(X.shape[0], np.int64)
+    remap[keep] = np.arange(keep.size)
+    sel = remap[p] >= 0
+    meas = Measurements(c[sel].astype(np.int64), remap[p[sel]], v[sel] + rng.normal(0.0, sigma_px, (int(sel.sum()), 2)),
+                        float(sigma_px))
+    return meas, X[keep], keep
+
+
+def _frame_eo(position: Array, rotation: Array, velocity: Array, epoch: float) -> ExteriorOrientation:
+    return ExteriorOrientation(epoch=epoch, times=np.array([0.0]), positions=position[None], velocities=velocity[None],
+                               quaternions=matrix_to_quat(rotation)[None], sun_times=np.array([0.0]),
+                               sun_positions=np.array([[1.5e11, 0.0, 0.0]]),
+                               attrs={"source": "lunarmap.simulate.blocks.frame_block"})
+
+
+def clementine_interior(focal_mm: float = 90.0, pitch_um: float = 23.0, width: int = 384, height: int = 288,
+                        odk: tuple[float, float, float] | None = (0.0, -2.42e-5, 0.0)) -> InteriorOrientation:
+    """A Clementine-UVVIS-like framing interior: samples along focal-plane x, lines along y, ``radial`` OD_K."""
+    pitch = pitch_um * 1e-3
+    return InteriorOrientation(
+        focal_length=focal_mm, focal2pixel_lines=(0.0, 0.0, 1.0 / pitch), focal2pixel_samples=(0.0, 1.0 / pitch, 0.0),
+        detector_center_line=height / 2.0, detector_center_sample=width / 2.0, n_lines=height, n_samples=width,
+        distortion_model="none" if odk is None else "radial",
+        distortion_coefficients={} if odk is None else {"coefficients": list(odk)}, pixel_pitch=pitch,
+        name="Clementine-like")
+
+
+def frame_block(orbits: int = 4, per_orbit: int = 12, points: int = 1500, n_control: int = 4, n_check: int = 0,
+                sigma_px: float = 0.3, altitude: float = 400e3, interior: InteriorOrientation | None = None,
+                nav_sigma_pos: float = 10.0, nav_sigma_att: float = np.radians(0.001),
+                offset_pos: float = 100.0, offset_att: float = np.radians(0.01),
+                drift_pos: float = 0.5, drift_att: float = np.radians(0.0002), control_sigma: float = 5.0,
+                relief: float = 2000.0, speed: float = 1600.0, seed: int = 0) -> SimulatedBlock:
+    """The DLR paper's frame block (module docstring); lengths metres, angles radians, drifts per second.
+
+    Parameters
+    ----------
+    orbits, per_orbit : int
+        Parallel strips and images per strip.
+    points : int
+        Ground points kept (seen by >= 2 images).
+    n_control, n_check : int
+        Control points (near the block's corners and centre) and check points (random others).
+    sigma_px : float
+        Image measurement noise, pixels.
+    interior : InteriorOrientation, optional
+        Default :func:`clementine_interior` (with its ``radial`` distortion).
+    nav_sigma_pos, nav_sigma_att : float
+        White noise of the navigation per image (m, rad).
+    offset_pos, offset_att, drift_pos, drift_att : float
+        Sigmas of the per-orbit offsets (m, rad) and drifts (m/s, rad/s) the navigation errors are drawn with.
+    control_sigma : float
+        Control point noise, metres per axis.
+    relief : float
+        Terrain amplitude, metres.
+    speed : float
+        Ground speed, m/s (converts along-track spacing into image times).
+    """
+    if orbits < 1 or per_orbit < 2:
+        raise InvalidInputError(f"a frame block needs >= 1 orbit of >= 2 images, got {orbits} x {per_orbit}")
+    rng = np.random.default_rng(seed)
+    io = interior or clementine_interior()
+    R = MOON_RADIUS
+    f_px = io.focal_length / io.pixel_pitch
+    gsd = altitude / f_px
+    base = 0.4 * io.n_lines * gsd
+    strip = 0.7 * io.n_samples * gsd
+    lats = (np.arange(per_orbit) - (per_orbit - 1) / 2) * base / R
+    lons = (np.arange(orbits) - (orbits - 1) / 2) * strip / R
+    LON, LAT = np.meshgrid(lons, lats, indexing="ij")
+    LAT, LON = LAT.ravel(), LON.ravel()
+    n = LAT.size
+    orbit = np.repeat(np.arange(orbits), per_orbit)
+    t = np.tile(np.arange(per_orbit) * base / speed, orbits)
+    t = t - t.reshape(orbits, per_orbit).mean(axis=1)[orbit]
+    E = enu_basis(np.degrees(LON), np.degrees(LAT))                      # rows east, north, up
+    up, north, east = E[:, 2], E[:, 1], E[:, 0]
+    C_true = (R + altitude + rng.normal(0, 500.0, n))[:, None] * up
+    # sensor frame: x = east (samples), y = south (lines run north to south), z = down (boresight)
+    R_nadir = np.stack([east, -north, -up], axis=-1)                   # columns: sensor axes in body-fixed
+    R_true = R_nadir @ rotvec_to_matrix(rng.normal(0, np.radians(0.05), (n, 3)))
+    vel = speed * (R + altitude) / R * north
+
+    off = np.column_stack([rng.normal(0, offset_att, (orbits, 3)), rng.normal(0, offset_pos, (orbits, 3))])
+    dr = np.column_stack([rng.normal(0, drift_att, (orbits, 3)), rng.normal(0, drift_pos, (orbits, 3))])
+    nav_sig = np.array([nav_sigma_att] * 3 + [nav_sigma_pos] * 3)
+    err = off[orbit] + t[:, None] * dr[orbit] + rng.normal(0, 1, (n, 6)) * nav_sig
+    # true = nav corrected by err: R_true = R_nav exp([w]x)^T, C_true = C_nav + c
+    R_nav = R_true @ rotvec_to_matrix(err[:, 0:3])
+    C_nav = C_true - err[:, 3:6]
+    shape = Shape.moon()
+    epoch = 3.0e8
+    true_cams = [FrameCamera(io, _frame_eo(C_true[i], R_true[i], vel[i], epoch + t[i]), shape) for i in range(n)]
+    nav_cams = [FrameCamera(io, _frame_eo(C_nav[i], R_nav[i], vel[i], epoch + t[i]), shape) for i in range(n)]
+
+    margin = 0.5 * np.hypot(io.n_samples, io.n_lines) * gsd / R
+    m = 6 * points
+    plat = rng.uniform(lats.min() - margin, lats.max() + margin, m)
+    plon = rng.uniform(lons.min() - margin, lons.max() + margin, m)
+    h = relief * (0.5 * np.sin(plat * R / 37e3 + 1.0) * np.cos(plon * R / 53e3) + 0.2 * np.sin(plon * R / 11e3))
+    X = lonlat_height_to_xyz(np.degrees(plon), np.degrees(plat), h)
+    meas, X, _ = observe(true_cams, X, sigma_px, rng, n_points=points)
+    control, check, ctl_xyz = _control_and_check(X, meas, n_control, n_check, control_sigma, rng, with_centre=True)
+    return SimulatedBlock(true_cams, nav_cams, err.copy(), X, meas, orbit, t, control, check, ctl_xyz,
+                          float(control_sigma), off, dr, nav_sig,
+                          np.array([offset_att] * 3 + [offset_pos] * 3), np.array([drift_att] * 3 + [drift_pos] * 3), 0)
+
+
+def _nac_camera(lon_orbit: float, lat: float, roll: float, altitude: float, n_lines: int, n_samples: int,
+                k1: float | None, perturb: tuple[Array, Array, Array] | None = None) -> LineScanCamera:
+    eo = polar_orbit_eo(lat_center=lat, lon=lon_orbit, altitude=altitude, half_span=2.0 + n_lines * NAC_LINE_TIME,
+                        step=0.05, roll_deg=roll)
+    if perturb is not None:
+        # navigation = truth with a position error and a sensor-frame attitude error a(t) = bias + t drift
+        dpos, datt, ddrift = perturb
+        M = quat_to_matrix(eo.quaternions)
+        Ea = rotvec_to_matrix(datt[None, :] + eo.times[:, None] * ddrift[None, :])
+        eo = ExteriorOrientation(epoch=eo.epoch, times=eo.times, positions=eo.positions + dpos,
+                                 velocities=eo.velocities, quaternions=matrix_to_quat(M @ Ea),
+                                 sun_times=eo.sun_times, sun_positions=eo.sun_positions,
+                                 attrs={**eo.attrs, "perturbed": 1})
+    return LineScanCamera(nac_like_interior(n_lines=n_lines, n_samples=n_samples, k1=k1), eo, Shape.moon(),
+                          line_times=(-n_lines * NAC_LINE_TIME / 2.0, NAC_LINE_TIME))
+
+
+def _terrain(lon: Array, lat: Array, site: tuple[float, float], relief: float) -> Array:
+    # smooth hills of a few hundred metres wavelength (the footprint is ~1 km)
+    x = np.radians(lon - site[0]) * MOON_RADIUS * np.cos(np.radians(site[1]))
+    y = np.radians(lat - site[1]) * MOON_RADIUS
+    return relief * (0.6 * np.sin(x / 210.0 + 0.3) * np.cos(y / 330.0) + 0.4 * np.sin((x + y) / 500.0))
+
+
+def linescan_site(rolls: tuple[float, ...] = (-15.0, 0.0, 15.0), degree: int = 1, n_points: int = 40,
+                  n_control: int = 4, n_check: int = 10, sigma_px: float = 0.3, n_lines: int = 3000,
+                  n_samples: int = 1500, altitude: float = 50e3, site: tuple[float, float] = (30.0, 20.0),
+                  pos_sigma: float = 20.0, att_sigma: float = 50e-6, att_drift_sigma: float = 20e-6,
+                  control_sigma: float = 0.3, relief: float = 50.0, k1: float | None = 1.81e-5,
+                  seed: int = 0) -> SimulatedBlock:
+    """NAC-like pushbroom images of one site from several rolled orbits (module docstring).
+
+    Parameters
+    ----------
+    rolls : sequence of float
+        Roll (look) angles across track, degrees; one image each.
+    degree : int
+        Degree (>= 1) of the correction polynomials the truth is expressed in.
+    pos_sigma, att_sigma, att_drift_sigma : float
+        Navigation errors per image: position (m per axis), attitude bias (rad), attitude drift (rad/s).
+    k1 : float or None
+        ``lrolrocnac`` distortion coefficient (mm^-2) of the cameras; ``None`` for none.
+    """
+    if degree < 1:
+        raise InvalidInputError("the simulated attitude drift needs a correction degree >= 1")
+    rng = np.random.default_rng(seed)
+    lon0, lat0 = site
+    true_cams, nav_cams, truth = [], [], []
+    for roll in rolls:
+        lon_o = lon0
+        for _ in range(3):   # shift the orbit until the centre pixel looks at the site
+            g = _nac_camera(lon_o, lat0, roll, altitude, n_lines, n_samples, k1).image_to_ground(
+                n_lines / 2, n_samples / 2, 0.0)
+            lon_o -= xyz_to_lonlat_height(g)[0] - lon0
+        dpos, datt, ddrift = (rng.normal(0, s, 3) for s in (pos_sigma, att_sigma, att_drift_sigma))
+        true_cams.append(_nac_camera(lon_o, lat0, roll, altitude, n_lines, n_samples, k1))
+        nav_cams.append(_nac_camera(lon_o, lat0, roll, altitude, n_lines, n_samples, k1, (dpos, datt, ddrift)))
+        truth.append((dpos, datt, ddrift))
+    n_par = 6 * (degree + 1)
+    true_params = np.zeros((len(rolls), n_par))
+    for i, (dpos, datt, ddrift) in enumerate(truth):
+        corr = nav_cams[i].corrections(degree)
+        true_params[i, 0:3] = datt + corr.t_mid * ddrift
+        true_params[i, 3:6] = -dpos
+        true_params[i, 6:9] = corr.t_half * ddrift
+
+    half = 0.35 * min(n_lines, n_samples) * 0.5 * altitude * 0.007 / 699.62 / MOON_RADIUS * 180 / np.pi
+    m = 4 * n_points
+    lon = lon0 + rng.uniform(-half, half, m) / np.cos(np.radians(lat0))
+    lat = lat0 + rng.uniform(-half, half, m) * n_lines / min(n_lines, n_samples)
+    X = lonlat_height_to_xyz(lon, lat, _terrain(lon, lat, site, relief))
+    meas, X, _ = observe(true_cams, X, sigma_px, rng, n_points=n_points)
+    if X.shape[0] < n_points:
+        warn(f"only {X.shape[0]} of {n_points} points are seen by 2 or more images", SimulationWarning)
+    control, check, ctl_xyz = _control_and_check(X, meas, n_control, n_check, control_sigma, rng, with_centre=False)
+    times = np.array([c.center_time for c in nav_cams])
+    return SimulatedBlock(true_cams, nav_cams, true_params, X, meas, np.zeros(len(rolls), np.int64),
+                          times - times.mean(), control, check, ctl_xyz, float(control_sigma),
+                          nav_sigma=np.array([att_sigma] * 3 + [pos_sigma] * 3),
+                          drift_sigma=np.array([att_drift_sigma] * 3 + [0.0] * 3), degree=degree)
+
+
+def _control_and_check(X: Array, meas: Measurements, n_control: int, n_check: int, control_sigma: float,
+                       rng: np.random.Generator, with_centre: bool) -> tuple[NDArray[np.int64], NDArray[np.int64], Array]:
+    """Control points nearest the cloud's corners (and centre) among well-observed points; random check points."""
+    rays = np.bincount(meas.pt_idx, minlength=X.shape[0])
+    cand = np.flatnonzero(rays >= min(3, int(rays.max())))
+    enu = local_enu(X[cand].mean(axis=0))
+    d = X[cand] - X[cand].mean(axis=0)
+    e, nn = d @ enu[0], d @ enu[1]
+    picks = [np.argmin(e + nn), np.argmax(e + nn), np.argmin(e - nn), np.argmax(e - nn)]
+    if with_centre:
+        picks.append(np.argmin(np.hypot(e, nn)))
+    control = np.unique(cand[np.array(picks[:max(n_control, 0)], np.int64)]) if n_control > 0 else np.zeros(0, np.int64)
+    rest = np.setdiff1d(np.arange(X.shape[0]), control)
+    check = np.sort(rng.choice(rest, size=min(n_check, rest.size), replace=False)) if n_check > 0 \
+        else np.zeros(0, np.int64)
+    ctl_xyz = X[control] + rng.normal(0.0, control_sigma, (control.size, 3))
+    return control.astype(np.int64), check.astype(np.int64), ctl_xyz
