@@ -190,7 +190,7 @@ class LroNacPds3Driver(_LroNac):
         frame = str(label.get("FRAME_ID", ""))
         if frame not in _PDS3_FRAMES:
             raise UnknownInstrumentError(
-                f"LROC PDS3 label {source} has FRAME_ID {frame or '(none)'!r}: lunarmap models only the "
+                f"LROC PDS3 label {source} has {f'FRAME_ID {frame!r}' if frame else 'no FRAME_ID'}: lunarmap models only the "
                 f"Narrow Angle Cameras (FRAME_ID LEFT or RIGHT), not the WAC")
         if "IMAGE_MAP_PROJECTION" in label:
             raise LabelError(f"LROC PDS3 label {source} describes a map-projected product (IMAGE_MAP_PROJECTION): "
