@@ -11,6 +11,7 @@ one-call entry point::
 from __future__ import annotations
 
 import os
+from typing import Callable
 
 from ...errors import UnknownInstrumentError
 from ...labels import Label, load_label
@@ -20,13 +21,29 @@ from .base import Driver
 from .clementine import ClementineUvvisDriver
 from .generic import GenericDriver
 from .kaguya import KaguyaTcDriver
-from .lro import LroNacDriver
+from .lro import LroNacDriver, LroNacPds3Driver
 
-__all__ = ["Driver", "LroNacDriver", "ClementineUvvisDriver", "KaguyaTcDriver", "GenericDriver",
-           "DRIVERS", "driver_for", "image_support"]
+__all__ = ["Driver", "LroNacDriver", "LroNacPds3Driver", "ClementineUvvisDriver", "KaguyaTcDriver", "GenericDriver",
+           "DRIVERS", "UNSUPPORTED_LABELS", "driver_for", "image_support"]
 
 #: Drivers in the order they are asked; the generic IK-configured driver is last.
-DRIVERS: list[type[Driver]] = [LroNacDriver, ClementineUvvisDriver, KaguyaTcDriver, GenericDriver]
+DRIVERS: list[type[Driver]] = [LroNacDriver, LroNacPds3Driver, ClementineUvvisDriver, KaguyaTcDriver, GenericDriver]
+
+
+def _kaguya_tc_isis(label: Label) -> bool:
+    inst = Driver.isis_instrument(label)
+    return inst is not None and str(inst.get("SpacecraftName", "")).upper() in ("KAGUYA", "SELENE") and \
+        str(inst.get("InstrumentId", "")).upper() in ("TC1", "TC2")
+
+
+#: Labels of cameras lunarmap models from another label kind only. They are refused by
+#: name after the specific drivers and before :class:`GenericDriver`, which would
+#: otherwise claim them (they are ISIS labels with a NAIF frame code) and fail deep
+#: inside SPICE, or worse, succeed with the wrong conventions.
+UNSUPPORTED_LABELS: list[tuple[Callable[[Label], bool], str]] = [
+    (_kaguya_tc_isis, "Kaguya TC is supported from its PDS3 level-2B0 label only (the ISIS label's start time "
+                      "and detector keywords are not read); give the PDS3 label"),
+]
 
 
 def driver_for(label: Label, source: str = "") -> Driver:
@@ -35,9 +52,17 @@ def driver_for(label: Label, source: str = "") -> Driver:
     Raises
     ------
     UnknownInstrumentError
-        No driver recognises the label (instrument, spacecraft and label type are named).
+        No driver recognises the label (instrument, spacecraft and label type are named),
+        the label is one of :data:`UNSUPPORTED_LABELS`, or the driver that claims it
+        refuses the camera (an LROC PDS3 label of the WAC).
+    LabelError
+        The claiming driver finds the label unusable before loading kernels.
     """
     for cls in DRIVERS:
+        if cls is GenericDriver:
+            for refuses, why in UNSUPPORTED_LABELS:
+                if refuses(label):
+                    raise UnknownInstrumentError(f"label {source}: {why}")
         if cls.matches(label):
             return cls(label, source)
     inst = label.find("InstrumentId") or label.find("INSTRUMENT_ID") or "?"
