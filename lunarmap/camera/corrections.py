@@ -46,6 +46,11 @@ from ..orientation.rotation import left_jacobian, matrix_to_quat, quat_to_matrix
 from .distortion import Distortion
 from .interior import InteriorOrientation
 
+try:  # optional: the frame stack's per-observation algebra in two fused passes instead of numpy temporaries
+    import numba
+except ImportError:  # pragma: no cover - exercised only without numba
+    numba = None
+
 __all__ = ["FrameCorrections", "LineScanCorrections", "AffineCorrections", "AffineCorrectedSensor",
            "FrameStack", "pinhole_image"]
 
@@ -157,6 +162,65 @@ def _eo_partials(dpix_dv: Array, v: Array, M: Array, w: Array) -> tuple[Array, A
 
 # -- frame cameras ------------------------------------------------------------------------------
 
+def _frame_focal_py(M, P, c, f, idx, X):
+    """Sensor vectors ``v = M (X - P - c)`` and undistorted focal-plane mm of observations (NaN behind)."""
+    n = idx.shape[0]
+    v = np.empty((n, 3))
+    u = np.empty((n, 2))
+    for i in range(n):
+        k = idx[i]
+        d0 = X[i, 0] - P[k, 0] - c[k, 0]
+        d1 = X[i, 1] - P[k, 1] - c[k, 1]
+        d2 = X[i, 2] - P[k, 2] - c[k, 2]
+        for r in range(3):
+            v[i, r] = M[k, r, 0] * d0 + M[k, r, 1] * d1 + M[k, r, 2] * d2
+        if v[i, 2] > 0.0:
+            s = f[k] / v[i, 2]
+            u[i, 0] = v[i, 0] * s
+            u[i, 1] = v[i, 1] * s
+        else:
+            u[i, 0] = np.nan
+            u[i, 1] = np.nan
+    return v, u
+
+
+def _frame_pixels_py(v, u, d, jd, A, b, M, Jl, f, idx, want_jac):
+    """Pixels ``A d + b`` and, if wanted, ``d/d[w, c]`` (n, 2, 6) and ``d/dX`` (n, 2, 3) of observations."""
+    n = idx.shape[0]
+    pix = np.empty((n, 2))
+    jc = np.empty((n if want_jac else 0, 2, 6))
+    jx = np.empty((n if want_jac else 0, 2, 3))
+    for i in range(n):
+        k = idx[i]
+        for r in range(2):
+            pix[i, r] = A[k, r, 0] * d[i, 0] + A[k, r, 1] * d[i, 1] + b[k, r]
+        if not want_jac:
+            continue
+        iz = 1.0 / v[i, 2]
+        fz = f[k] * iz
+        for r in range(2):
+            # row r of A Jd, then times d(ux, uy)/dv = [[fz, 0, -ux iz], [0, fz, -uy iz]]
+            a0 = A[k, r, 0] * jd[i, 0, 0] + A[k, r, 1] * jd[i, 1, 0]
+            a1 = A[k, r, 0] * jd[i, 0, 1] + A[k, r, 1] * jd[i, 1, 1]
+            g0 = a0 * fz
+            g1 = a1 * fz
+            g2 = -(a0 * u[i, 0] + a1 * u[i, 1]) * iz
+            # d/dX = g M; d/dc = -d/dX; d/dw = g (-[v]x) J_l = (v x g)^T J_l
+            for m in range(3):
+                dx = g0 * M[k, 0, m] + g1 * M[k, 1, m] + g2 * M[k, 2, m]
+                jx[i, r, m] = dx
+                jc[i, r, 3 + m] = -dx
+            q0 = v[i, 1] * g2 - v[i, 2] * g1
+            q1 = v[i, 2] * g0 - v[i, 0] * g2
+            q2 = v[i, 0] * g1 - v[i, 1] * g0
+            for m in range(3):
+                jc[i, r, m] = q0 * Jl[k, 0, m] + q1 * Jl[k, 1, m] + q2 * Jl[k, 2, m]
+    return pix, jc, jx
+
+
+_frame_focal = numba.njit(cache=True)(_frame_focal_py) if numba is not None else None
+_frame_pixels = numba.njit(cache=True)(_frame_pixels_py) if numba is not None else None
+
 class FrameStack:
     """Vectorised projection and partials of many frame cameras' corrections at once.
 
@@ -168,12 +232,12 @@ class FrameStack:
     def __init__(self, items: Sequence["FrameCorrections"]) -> None:
         self.items = list(items)
         cams = [c.sensor for c in self.items]
-        self.P = np.array([c._position for c in cams]).reshape(-1, 3)
-        self.Rt = np.array([c._rotation.T for c in cams]).reshape(-1, 3, 3)   # body -> sensor
+        self.P = np.ascontiguousarray(np.array([c._position for c in cams]).reshape(-1, 3))
+        self.Rt = np.ascontiguousarray(np.array([c._rotation.T for c in cams]).reshape(-1, 3, 3))  # body -> sensor
         self.f = np.array([c.interior.focal_length for c in cams], dtype=float)
         ab = [_pixel_affine(c.interior) for c in cams]
-        self.A = np.array([a for a, _ in ab]).reshape(-1, 2, 2)
-        self.b = np.array([b for _, b in ab]).reshape(-1, 2)
+        self.A = np.ascontiguousarray(np.array([a for a, _ in ab]).reshape(-1, 2, 2))
+        self.b = np.ascontiguousarray(np.array([b for _, b in ab]).reshape(-1, 2))
         keys: dict[str, int] = {}
         self.dist_of = np.empty(len(cams), dtype=np.int64)
         self.distortions: list[Distortion] = []
@@ -184,13 +248,17 @@ class FrameStack:
                 self.distortions.append(c.distortion)
             self.dist_of[i] = keys[k]
 
-    def partials(self, params: Array, idx: NDArray[np.int64], X: Array, jacobian: bool = True
-                 ) -> tuple[Array, Array | None, Array | None]:
+    def partials(self, params: Array, idx: NDArray[np.int64], X: Array, jacobian: bool = True,
+                 compiled: bool = True) -> tuple[Array, Array | None, Array | None]:
         """Pixels ``(n, 2)``, ``d/d params (n, 2, 6)``, ``d/dX (n, 2, 3)`` of observations of images ``idx``.
 
         ``params (n_images, >= 6)``: the first 6 columns are ``[w, c]`` of each stacked image.
+        ``compiled=False`` forces the numpy path (the compiled one is used when numba is installed).
         """
         params = np.asarray(params, dtype=float)
+        if compiled and _frame_focal is not None:
+            return self._partials_compiled(params, np.ascontiguousarray(idx, dtype=np.int64),
+                                           np.ascontiguousarray(X, dtype=float), jacobian)
         w_img = params[:, 0:3]
         M_img = rotvec_to_matrix(w_img) @ self.Rt            # exp([w]x) R^T per image
         M = M_img[idx]
@@ -204,6 +272,28 @@ class FrameStack:
         d_x, d_c, d_w = _eo_partials(dv, v, M, w_img[idx])  # type: ignore[arg-type]
         jc = np.concatenate([d_w, d_c], axis=2)
         return pix, jc, d_x
+
+    def _partials_compiled(self, params: Array, idx: NDArray[np.int64], X: Array, jacobian: bool):
+        w_img = np.ascontiguousarray(params[:, 0:3])
+        M_img = np.ascontiguousarray(rotvec_to_matrix(w_img) @ self.Rt)
+        c_img = np.ascontiguousarray(params[:, 3:6])
+        v, u = _frame_focal(M_img, self.P, c_img, self.f, idx, X)  # type: ignore[misc]
+        n = idx.size
+        d = np.empty((n, 2))
+        jd = np.empty((n if jacobian else 0, 2, 2))
+        dist_idx = self.dist_of[idx]
+        single = len(self.distortions) == 1
+        for k, dist in enumerate(self.distortions):
+            m = slice(None) if single else dist_idx == k
+            if jacobian:
+                dx, dy, j = dist.distort_with_jacobian(u[m, 0], u[m, 1])
+                jd[m] = j
+            else:
+                dx, dy = dist.distort(u[m, 0], u[m, 1])
+            d[m, 0], d[m, 1] = dx, dy
+        Jl = np.ascontiguousarray(left_jacobian(w_img)) if jacobian else np.empty((0, 3, 3))
+        pix, jc, jx = _frame_pixels(v, u, d, jd, self.A, self.b, M_img, Jl, self.f, idx, jacobian)  # type: ignore[misc]
+        return (pix, jc, jx) if jacobian else (pix, None, None)
 
 
 class FrameCorrections:

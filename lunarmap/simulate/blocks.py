@@ -169,7 +169,8 @@ def frame_block(orbits: int = 4, per_orbit: int = 12, points: int = 1500, n_cont
     points : int
         Ground points kept (seen by >= 2 images).
     n_control, n_check : int
-        Control points (near the block's corners and centre) and check points (random others).
+        Control points (near the block's corners and centre, then spread farthest-first) and check points
+        (random others).
     sigma_px : float
         Image measurement noise, pixels.
     interior : InteriorOrientation, optional
@@ -329,6 +330,15 @@ def _control_and_check(X: Array, meas: Measurements, n_control: int, n_check: in
     if with_centre:
         picks.append(np.argmin(np.hypot(e, nn)))
     control = np.unique(cand[np.array(picks[:max(n_control, 0)], np.int64)]) if n_control > 0 else np.zeros(0, np.int64)
+    if n_control > control.size:
+        # more control: the well-observed candidates farthest from those chosen so far, one at a time
+        chosen = list(control)
+        dist = np.min(np.linalg.norm(X[cand][:, None, :] - X[np.array(chosen)][None, :, :], axis=2), axis=1)
+        while len(chosen) < min(n_control, cand.size):
+            k = int(np.argmax(dist))
+            chosen.append(int(cand[k]))
+            dist = np.minimum(dist, np.linalg.norm(X[cand] - X[cand[k]], axis=1))
+        control = np.unique(np.array(chosen, np.int64))
     rest = np.setdiff1d(np.arange(X.shape[0]), control)
     check = np.sort(rng.choice(rest, size=min(n_check, rest.size), replace=False)) if n_check > 0 \
         else np.zeros(0, np.int64)
