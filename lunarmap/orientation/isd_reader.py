@@ -31,13 +31,15 @@ The document holds, in J2000 and km (see the shared kernel README, section 5):
   constant-angular-velocity propagation outside the listed epochs.
 
 Measured accuracy (tests/test_isd_json.py): the body rotation rebuilt from two
-epochs 16 s apart agrees with SPICE's ``sxform`` at 5223 epochs to the
-rounding noise of SPICE's own evaluation (~1e-12 rad); positions resampled from
-samples 0.3 s apart agree with the SPK to < 1 micrometre; pointing resampled
-from a smooth (synthetic) CK agrees to < 1e-10 rad. Real CK data are only
-piecewise smooth, and no interpolation of sampled attitude (the camera's own
-included) recovers a CK record boundary it did not sample: 5e-9 rad for LRO NAC
-samples 2 ms apart.
+epochs agrees with SPICE's ``sxform`` to the rounding noise of SPICE's own
+evaluation (3e-13 rad over ALE's 0.4 s LRO NAC image, 8e-13 rad over 16 s of
+the synthetic mission; its rate to 2e-18 rad/s); from a synthetic mission's
+kernels, positions resampled from samples 0.31 s apart agree with the SPK to
+1e-9 m and pointing resampled from samples 31 ms apart with the CK to 5e-12 rad.
+Real CK data are only piecewise smooth, and no interpolation of sampled
+attitude (the camera's own between samples included) recovers a CK record
+boundary it did not sample: 1e-8 rad for LRO NAC pointing resampled from
+samples 2 ms apart (2e-10 rad away from the record boundaries).
 
 Every problem raises :class:`~lunarmap.errors.IsdFormatError` naming the
 file and the key (``instrument_pointing.quaternions``); nothing is written.
