@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import InvalidInputError
 from .rotation import align_quaternion_signs, normalize_quat, quat_to_matrix
 
-__all__ = ["RotationHermite", "quat_multiply", "state_transform"]
+__all__ = ["RotationHermite", "quat_multiply", "quat_exp", "quat_log", "state_transform"]
 
 Array = NDArray[np.float64]
 
@@ -84,7 +84,7 @@ def state_transform(matrices: ArrayLike, angular_velocities: ArrayLike) -> Array
     return xf
 
 
-def _quat_exp(v: Array) -> Array:
+def quat_exp(v: Array) -> Array:
     """Unit quaternion of the rotation vector ``v`` (rad): ``quat_to_matrix = exp([v]x)``."""
     theta = np.linalg.norm(v, axis=-1, keepdims=True)
     half = 0.5 * theta
@@ -94,8 +94,8 @@ def _quat_exp(v: Array) -> Array:
     return np.concatenate([np.cos(half), ratio * v], axis=-1)
 
 
-def _quat_log(q: Array) -> Array:
-    """Rotation vector (rad) of unit quaternions with ``w >= 0`` (inverse of :func:`_quat_exp`)."""
+def quat_log(q: Array) -> Array:
+    """Rotation vector (rad) of unit quaternions with ``w >= 0`` (inverse of :func:`quat_exp`)."""
     w = np.clip(q[..., :1], -1.0, 1.0)
     s = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
     theta = 2.0 * np.arctan2(s, w)
@@ -175,7 +175,7 @@ class RotationHermite:
             h = np.diff(self.times)[:, None]
             rel = quat_multiply(self._conj(self.quaternions[:-1]), self.quaternions[1:])  # R_k^T R_k+1
             # R_k+1 = R_k exp(-[phi1]x): phi1 = -log(rel); sign-aligned neighbours keep w >= 0
-            self._phi1 = -_quat_log(rel * np.where(rel[:, :1] < 0.0, -1.0, 1.0))
+            self._phi1 = -quat_log(rel * np.where(rel[:, :1] < 0.0, -1.0, 1.0))
             self._d0 = h * self.angular_velocities[:-1]
             # phi'(t_k+1) solves w_k+1 = J_r(-phi1) phi'
             self._d1 = h * _right_jacobian_inverse_apply(-self._phi1, self.angular_velocities[1:])
@@ -217,7 +217,7 @@ class RotationHermite:
                    + (s3 - s2) * self._d1[ki])
             dphi = ((3.0 * s2 - 4.0 * s + 1.0) * self._d0[ki] + (-6.0 * s2 + 6.0 * s) * self._phi1[ki]
                     + (3.0 * s2 - 2.0 * s) * self._d1[ki]) / h
-            q_out[inside] = quat_multiply(self.quaternions[ki], _quat_exp(-phi))
+            q_out[inside] = quat_multiply(self.quaternions[ki], quat_exp(-phi))
             if self.rates == "linear":
                 w_out[inside] = (1.0 - s) * self.angular_velocities[ki] + s * self.angular_velocities[ki + 1]
             else:
@@ -228,7 +228,7 @@ class RotationHermite:
             j = np.where(t[outside] < self.times[0], 0, n - 1)
             dt = (t[outside] - self.times[j])[:, None]
             w_j = self.angular_velocities[j]
-            q_out[outside] = quat_multiply(self.quaternions[j], _quat_exp(-dt * w_j))
+            q_out[outside] = quat_multiply(self.quaternions[j], quat_exp(-dt * w_j))
             w_out[outside] = w_j
         q_out = normalize_quat(q_out)
         # the samples themselves, bit for bit (so that a table read and written again is unchanged)
