@@ -534,3 +534,22 @@ def test_reading_needs_no_spice(lro_set):
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert res.returncode == 0, res.stderr
     assert len(json.loads(res.stdout)) == 3
+
+
+@pytest.mark.shared
+def test_pointing_without_angular_velocities(lro_set):
+    """The pointing's angular velocities are optional: the quaternions alone make the camera."""
+    doc = json.loads((lro_set / "ale_isd.json").read_text())
+    with_rates = ImageSupport.from_ale_dict(doc)
+    del doc["instrument_pointing"]["angular_velocities"]
+    without = ImageSupport.from_ale_dict(doc)
+    assert np.array_equal(without.pointing.quaternions, with_rates.pointing.quaternions)
+    # derived from the samples' own motion: LRO turns at 8e-4 rad/s; the CK's rates differ by up to 3e-5
+    assert np.abs(without.pointing.angular_velocities - with_rates.pointing.angular_velocities).max() < 5e-5
+    line, sample = image_grid(without.image_lines, without.image_samples, 5)
+    g1 = camera_from_isd(with_rates).image_to_ground(line, sample)
+    g2 = camera_from_isd(without).image_to_ground(line, sample)
+    assert np.abs(g1 - g2).max() < 1e-9
+    body = _edit(json.loads((lro_set / "ale_isd.json").read_text()), "body_rotation.angular_velocities", ...)
+    with pytest.raises(IsdFormatError, match="'body_rotation.angular_velocities' is missing"):
+        ImageSupport.from_ale_dict(body)
