@@ -197,3 +197,16 @@ class AdjustmentDivergedError(AdjustmentError, ConvergenceError):
 
 class NetworkFormatError(AdjustmentInputError):
     """A control-network file or dataset is malformed: missing variable, bad point type, index out of range."""
+
+
+# --- ISD JSON files (lunarmap.orientation.isd_reader, feature isd-json) -----
+
+__all__ += ["IsdFormatError"]
+
+
+class IsdFormatError(LunarmapError, ValueError):
+    """An ISD JSON document is unusable; the message names the file and the key.
+
+    Malformed JSON, a missing key, a wrong type or shape, a non-finite number,
+    an unknown ``name_model`` or distortion model.
+    """

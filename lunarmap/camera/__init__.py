@@ -10,6 +10,7 @@ from .distortion import (
     distortion_from_interior,
     make_distortion,
 )
+from .factory import camera_from_isd, camera_from_isd_file
 from .frame import FrameCamera, focal_to_image, image_to_focal
 from .geodesy import (
     enu_basis,
@@ -35,4 +36,5 @@ __all__ = [
     "intersect_ellipsoid", "intersect_sphere", "intersect_dtm", "DtmSampler",
     "FrameCamera", "image_to_focal", "focal_to_image",
     "LineScanCamera", "LineTimes",
+    "camera_from_isd", "camera_from_isd_file",
 ]

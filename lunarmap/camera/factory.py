@@ -3,9 +3,13 @@
 :func:`camera_from_isd` turns an :class:`~lunarmap.orientation.isd.ImageSupport`
 (what a driver sampled from SPICE) into a :class:`FrameCamera` or
 :class:`LineScanCamera`: the ALE -> usgscsm seam, inside one library.
+:func:`camera_from_isd_file` does the same from an ISD JSON file (lunarmap's or
+ALE's), as usgscsm does, without SPICE.
 """
 
 from __future__ import annotations
+
+import os
 
 import numpy as np
 
@@ -15,7 +19,7 @@ from .interior import InteriorOrientation
 from .linescan import LineScanCamera, LineTimes
 from .shape import Shape
 
-__all__ = ["camera_from_isd", "interior_from_isd", "shape_from_isd"]
+__all__ = ["camera_from_isd", "camera_from_isd_file", "interior_from_isd", "shape_from_isd"]
 
 
 def interior_from_isd(isd: ImageSupport, distortion: bool = True) -> InteriorOrientation:
@@ -66,5 +70,32 @@ def camera_from_isd(isd: ImageSupport, shape: Shape | None = None,
     shape = shape_from_isd(isd) if shape is None else shape
     if isd.model == "frame":
         return FrameCamera(interior, eo, shape, time=isd.center_ephemeris_time - eo.epoch)
-    times = LineTimes.uniform(isd.starting_ephemeris_time - eo.epoch, isd.line_period)
+    if isd.line_scan_rates is not None:
+        # usgscsm's timing: rows relative to the centre time, several for a variable line rate
+        times = LineTimes.from_line_scan_rate(isd.line_scan_rates, time_offset=isd.center_ephemeris_time - eo.epoch)
+    else:
+        times = LineTimes.uniform(isd.starting_ephemeris_time - eo.epoch, isd.line_period)
     return LineScanCamera(interior, eo, shape, line_times=times)
+
+
+def camera_from_isd_file(path: str | os.PathLike[str], shape: Shape | None = None,
+                         distortion: bool = True) -> FrameCamera | LineScanCamera:
+    """The rigorous sensor model of an ISD JSON file (written by lunarmap or USGS ALE); no SPICE.
+
+    Parameters
+    ----------
+    path : path-like
+        The ISD (``USGS_ASTRO_FRAME_SENSOR_MODEL`` or ``USGS_ASTRO_LINE_SCANNER_SENSOR_MODEL``).
+    shape : Shape, optional
+        Body shape; the ISD's radii by default.
+    distortion : bool
+        ``False`` builds the model without lens distortion.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    IsdFormatError
+        The file is not a readable ISD; the message names the file and the key.
+    """
+    return camera_from_isd(ImageSupport.read_json(path), shape=shape, distortion=distortion)

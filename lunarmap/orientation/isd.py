@@ -10,6 +10,10 @@ derives the body-fixed :class:`~lunarmap.orientation.exterior.ExteriorOrientatio
 The body rotation is kept at *every* pointing epoch internally (the ISD
 itself, like ALE's, lists only the first and last) so that the body-fixed
 trajectory is exact at each sample.
+
+:meth:`ImageSupport.read_json` / :meth:`ImageSupport.from_ale_dict` read such
+documents back, from lunarmap or from ALE, without SPICE (see
+:mod:`lunarmap.orientation.isd_reader`).
 """
 
 from __future__ import annotations
@@ -130,15 +134,67 @@ class ImageSupport:
     naif_keywords: dict[str, Any] = field(default_factory=dict)
     isis_camera_version: int = 1
     provenance: dict[str, Any] = field(default_factory=dict)
+    #: usgscsm ``line_scan_rate`` rows ``[line, time - centre (s), s per line]`` when they were given
+    #: (read from a file, possibly several: variable line rate); ``None``: one row from ``line_period``.
+    line_scan_rates: NDArray[np.float64] | None = None
+    #: J2000 -> body-fixed rotations at ``sun_times`` (m, 3, 3), when the Sun epochs are not among
+    #: ``times``; ``None``: taken from ``body_state_rotations`` at the nearest sample.
+    sun_body_rotations: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         if self.model not in ("frame", "linescan"):
             raise InvalidInputError(f"unknown sensor model {self.model!r}; use 'frame' or 'linescan'")
+        if self.line_scan_rates is not None:
+            rows = np.asarray(self.line_scan_rates, dtype=float)
+            if rows.ndim != 2 or rows.shape[1] != 3 or rows.shape[0] == 0:
+                raise InvalidInputError(f"line_scan_rates must have shape (m, 3), got {rows.shape}")
+            self.line_scan_rates = rows
+
+    # -- construction from documents -------------------------------------------
+    @classmethod
+    def from_ale_dict(cls, d: dict[str, Any], source: str = "") -> "ImageSupport":
+        """Build from an ISD document in ALE's layout (as :meth:`to_ale_dict` or ALE writes it).
+
+        No SPICE is involved: the body rotation, given at a few epochs with its
+        angular velocities, is interpolated to every position/pointing epoch.
+
+        Parameters
+        ----------
+        d : dict
+            The parsed JSON document (left unchanged).
+        source : str
+            File name, for messages and provenance.
+
+        Raises
+        ------
+        IsdFormatError
+            The document is malformed; the message names the source and the key.
+        """
+        from .isd_reader import image_support_from_ale_dict
+
+        return image_support_from_ale_dict(d, source=source)
+
+    @classmethod
+    def read_json(cls, path: str | os.PathLike[str]) -> "ImageSupport":
+        """Read an ISD JSON file written by lunarmap (:meth:`write_json`) or USGS ALE.
+
+        Raises
+        ------
+        FileNotFoundError
+            No such file.
+        IsdFormatError
+            Malformed JSON or ISD; the message names the file and the key.
+        """
+        from .isd_reader import read_isd_json
+
+        return read_isd_json(path)
 
     # -- derived quantities ---------------------------------------------------
     @property
     def line_scan_rate(self) -> list[list[float]]:
-        """usgscsm's ``[[line, time relative to centre, seconds per line]]``."""
+        """usgscsm's ``[[line, time relative to centre, seconds per line]]`` (ISIS line convention)."""
+        if self.line_scan_rates is not None:
+            return np.asarray(self.line_scan_rates, dtype=float).tolist()
         return [[0.5, self.starting_ephemeris_time - self.center_ephemeris_time, self.line_period]]
 
     def sensor_to_body_matrices(self) -> NDArray[np.float64]:
@@ -162,9 +218,13 @@ class ImageSupport:
         state = np.concatenate([self.positions, self.velocities], axis=1)
         bf = np.einsum("nij,nj->ni", xf, state) * 1000.0
         quats = matrix_to_quat(self.sensor_to_body_matrices())
-        # the Sun samples are a subset of the pointing epochs (first and last)
-        idx = np.searchsorted(self.times, self.sun_times).clip(0, self.times.size - 1)
-        sun_bf = np.einsum("nij,nj->ni", xf[idx, :3, :3], self.sun_positions) * 1000.0
+        if self.sun_body_rotations is not None:
+            sun_rot = np.asarray(self.sun_body_rotations, dtype=float)
+        else:
+            # the Sun samples are a subset of the pointing epochs (first and last)
+            idx = np.searchsorted(self.times, self.sun_times).clip(0, self.times.size - 1)
+            sun_rot = xf[idx, :3, :3]
+        sun_bf = np.einsum("nij,nj->ni", sun_rot, self.sun_positions) * 1000.0
         return ExteriorOrientation(
             epoch=float(epoch), times=self.times - epoch, positions=bf[:, :3], velocities=bf[:, 3:],
             quaternions=quats, sun_times=self.sun_times - epoch, sun_positions=sun_bf,
@@ -209,8 +269,8 @@ class ImageSupport:
         isd["starting_detector_sample"] = self.starting_detector_sample
         isd["instrument_position"] = _position_block(self.times, self.positions, self.velocities)
         isd["sun_position"] = _position_block(self.sun_times, self.sun_positions, self.sun_velocities)
-        if self.provenance:
-            isd["lunarmap"] = self.provenance
+        # ALE's layout names the body-fixed frame only by its NAIF id (naif_keywords.BODY_FRAME_CODE)
+        isd["lunarmap"] = {**self.provenance, "body_frame": self.body_frame}
         return _jsonable(isd)
 
     def write_json(self, path: str | os.PathLike[str]) -> None:
