@@ -44,6 +44,11 @@ __all__ = [
     "DatumDefectError",
     "AdjustmentDivergedError",
     "NetworkFormatError",
+    "OrientationKernelError",
+    "OrientationCoverageError",
+    "OrientationConflictError",
+    "MissingClockError",
+    "TrajectoryFitError",
 ]
 
 
@@ -192,3 +197,29 @@ class AdjustmentDivergedError(AdjustmentError, ConvergenceError):
 
 class NetworkFormatError(AdjustmentInputError):
     """A control-network file or dataset is malformed: missing variable, bad point type, index out of range."""
+
+
+# --- Adjusted orientation written back as ISDs and kernels (lunarmap.orientation.update / .kernels) ---
+
+class OrientationKernelError(LunarmapError):
+    """Base class of the errors raised while writing adjusted orientation back as ISDs or kernels."""
+
+
+class OrientationCoverageError(OrientationKernelError, InvalidInputError):
+    """An adjusted exterior orientation does not cover the epochs of its image (or has another body frame)."""
+
+
+class OrientationConflictError(OrientationKernelError, InvalidInputError):
+    """Images overlapping in time want different orientations of one spacecraft or one CK frame.
+
+    One SPK holds one trajectory per spacecraft and one CK one attitude per frame; the
+    message names both images, the object and the size of the disagreement.
+    """
+
+
+class MissingClockError(OrientationKernelError, KernelCoverageError):
+    """The spacecraft clock a CK frame is encoded with is not defined by the kernel set."""
+
+
+class TrajectoryFitError(OrientationKernelError, ConvergenceError):
+    """The geometric trajectory reproducing the adjusted (aberration-corrected) positions was not found."""
