@@ -93,8 +93,10 @@ __all__ = ["write_orientation_kernels", "MERGE_POSITION_TOLERANCE", "MERGE_VELOC
 
 #: Overlapping images may share a trajectory if they agree within this, m.
 MERGE_POSITION_TOLERANCE = 1e-4
-#: ... and their velocities within this, m/s.
-MERGE_VELOCITY_TOLERANCE = 1e-5
+#: ... and their velocities within this, m/s. An EO's velocity between its samples (the derivative
+#: of its Hermite spline) is only good to ~1e-4 m/s; velocities reach the cameras through the
+#: interpolation between records, where 1e-3 m/s over a few milliseconds is below a micrometre.
+MERGE_VELOCITY_TOLERANCE = 1e-3
 #: Overlapping images may share a CK frame's attitude if they agree within this, rad.
 MERGE_ROTATION_TOLERANCE = 1e-9
 #: The corrected positions the driver will read back must match within this, m. SPICE forms an
