@@ -32,7 +32,7 @@ from lunarmap.orientation.isd import ImageSupport
 from lunarmap.orientation.kernels import write_orientation_kernels
 from lunarmap.orientation.update import updated_image_support
 from lunarmap.spice import SPICE_LOCK, KernelSet, clear, kernels
-from lunarmap.spice.writer import write_text_kernel
+from lunarmap.spice.writer import CkSegment, write_ck, write_text_kernel
 from lunarmap.synthetic import FRAME_CAMERA_ID, NAC_ID
 
 ARCSEC = np.pi / 180.0 / 3600.0
@@ -432,6 +432,18 @@ def test_failing_ck_leaves_no_new_file_and_keeps_an_earlier_set(sim, sim_mission
                                   tmp_path, sim_mission)
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
     assert first == tmp_path / "adjusted.tm"
+
+
+def test_ck_segment_clock_overrides_the_file_default(sim_mission, tmp_path):
+    # every real set here uses SPICE's default clock (id / 1000), so the round trips cannot tell
+    kset = KernelSet.from_metakernel(sim_mission)
+    et = 827324897.5 + np.array([0.0, 1.0])
+    seg = CkSegment(-990000, "J2000", et, [[1.0, 0, 0, 0]] * 2, [[0.0, 0, 0]] * 2, "clock test", sclk_id=-990)
+    with kernels(kset):
+        write_ck(tmp_path / "a.bc", [seg], time_kernels=[], sclk_id=-123456)  # no such clock: unused
+        with pytest.raises(LunarmapError, match="-123456"):
+            write_ck(tmp_path / "b.bc", [dataclasses.replace(seg, sclk_id=None)], time_kernels=[], sclk_id=-123456)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.bc"]
 
 
 def test_report_measured_figures():
