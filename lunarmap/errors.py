@@ -45,6 +45,11 @@ __all__ = [
     "DatumDefectError",
     "AdjustmentDivergedError",
     "NetworkFormatError",
+    "OrientationKernelError",
+    "OrientationCoverageError",
+    "OrientationConflictError",
+    "MissingClockError",
+    "TrajectoryFitError",
 ]
 
 
@@ -201,12 +206,35 @@ class NetworkFormatError(AdjustmentInputError):
 
 # --- ISD JSON files (lunarmap.orientation.isd_reader, feature isd-json) -----
 
-__all__ += ["IsdFormatError"]
-
-
 class IsdFormatError(LunarmapError, ValueError):
     """An ISD JSON document is unusable; the message names the file and the key.
 
     Malformed JSON, a missing key, a wrong type or shape, a non-finite number,
     an unknown ``name_model`` or distortion model.
     """
+
+
+# --- Adjusted orientation written back as ISDs and kernels (lunarmap.orientation.update / .kernels) ---
+
+class OrientationKernelError(LunarmapError):
+    """Base class of the errors raised while writing adjusted orientation back as ISDs or kernels."""
+
+
+class OrientationCoverageError(OrientationKernelError, InvalidInputError):
+    """An adjusted exterior orientation does not cover the epochs of its image (or has another body frame)."""
+
+
+class OrientationConflictError(OrientationKernelError, InvalidInputError):
+    """Images overlapping in time want different orientations of one spacecraft or one CK frame.
+
+    One SPK holds one trajectory per spacecraft and one CK one attitude per frame; the
+    message names both images, the object and the size of the disagreement.
+    """
+
+
+class MissingClockError(OrientationKernelError, KernelCoverageError):
+    """The spacecraft clock a CK frame is encoded with is not defined by the kernel set."""
+
+
+class TrajectoryFitError(OrientationKernelError, ConvergenceError):
+    """The geometric trajectory reproducing the adjusted (aberration-corrected) positions was not found."""

@@ -23,7 +23,7 @@ __all__ = [
     "states", "surface_lt_states", "rotations", "state_rotations", "angular_velocities",
     "str2et", "scs2e", "sct2e", "et2utc", "frame_id", "frame_name", "frame_info", "frame_trace",
     "pool_values", "pool_has", "body_radii", "body_code", "body_frame", "instrument_keywords", "C_KM_S",
-    "light_times",
+    "light_times", "ck_clock", "sclk_ticks",
 ]
 
 #: Speed of light, km/s (SPICE's clight()).
@@ -268,3 +268,26 @@ def body_frame(body: int) -> tuple[int, str]:
         except SpiceyError as err:
             raise KernelCoverageError(f"no body-fixed frame is associated with body {body}") from err
     return int(res[0]), str(res[1])
+
+
+# --- used by lunarmap.orientation.kernels (adjusted orientation kernels) ---
+
+def ck_clock(ck_id: int) -> int:
+    """The spacecraft clock id a CK's data for ``ck_id`` are encoded with.
+
+    SPICE's own rule (``ckmeta``): ``CK_<ck_id>_SCLK`` from the kernel pool
+    when defined, otherwise ``ck_id / 1000`` truncated.
+    """
+    with SPICE_LOCK, spice_errors(f"spacecraft clock of CK id {ck_id}"):
+        return int(spiceypy.ckmeta(int(ck_id), "SCLK"))
+
+
+def sclk_ticks(clock: int, ets: ArrayLike) -> NDArray[np.float64]:
+    """Continuous encoded spacecraft-clock ticks (``sce2c``) of ephemeris times; shape (n,)."""
+    ets = _ets(ets)
+    out = np.empty(ets.size)
+    with SPICE_LOCK:
+        for i, et in enumerate(ets):
+            with spice_errors(f"converting ET {et:.6f} to spacecraft clock {clock}"):
+                out[i] = spiceypy.sce2c(int(clock), float(et))
+    return out

@@ -430,6 +430,9 @@ class CkSegment:
         ``ref``, rad/s.
     segment_id : str
         At most 40 characters.
+    sclk_id : int, optional
+        Spacecraft clock of this segment's epochs; overrides ``write_ck``'s
+        ``sclk_id`` (for CK files holding frames of several clocks).
     """
 
     inst: int
@@ -438,6 +441,7 @@ class CkSegment:
     quaternions: ArrayLike
     angular_velocity: ArrayLike
     segment_id: str = ""
+    sclk_id: int | None = None
 
     def validated(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """``(epochs, unit quaternions, angular velocities)``; raises InvalidInputError."""
@@ -570,7 +574,8 @@ def write_ck(path: str | os.PathLike[str], segments: Sequence[CkSegment], *,
         in the pool are left as they are).
     sclk_id : int, optional
         NAIF id of the spacecraft clock; by default ``inst // 1000`` as SPICE
-        itself assumes (``ckmeta``) for every segment.
+        itself assumes (``ckmeta``) for every segment. A segment's own
+        ``sclk_id`` takes precedence.
     internal_name : str
         The DAF internal file name (at most 60 characters).
     comments : str or sequence of str
@@ -590,7 +595,8 @@ def write_ck(path: str | os.PathLike[str], segments: Sequence[CkSegment], *,
         ticks = []
         with loaded_temporarily(time_kernels):
             for seg, t, _q, _av in prepared:
-                clock = int(sclk_id) if sclk_id is not None else _default_sclk(int(seg.inst))
+                clock = (int(seg.sclk_id) if seg.sclk_id is not None else
+                         int(sclk_id) if sclk_id is not None else _default_sclk(int(seg.inst)))
                 with spice_errors(f"converting ET to SCLK {clock} for CK {final}"):
                     ticks.append(np.array([spiceypy.sce2c(clock, float(e)) for e in t]))
         for (seg, *_), tk in zip(prepared, ticks):

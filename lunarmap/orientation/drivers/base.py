@@ -227,7 +227,9 @@ class Driver:
             body_rotation=body_rot, body_state_rotations=xf, sun_times=sun_times,
             sun_positions=sun[:, :3], sun_velocities=sun[:, 3:], radii=radii, body_frame=body_frame,
             naif_keywords=self.naif_keywords(body_code), isis_camera_version=self.isis_camera_version,
-            provenance={"driver": self.name, "label": self.source, "position_correction": corr},
+            # the NAIF ids let adjusted orientation be written back as kernels (orientation.kernels)
+            provenance={"driver": self.name, "label": self.source, "position_correction": corr,
+                        "spacecraft_id": int(sc), "target_id": int(body)},
             **io,
         )
 
