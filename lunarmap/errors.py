@@ -45,6 +45,7 @@ __all__ = [
     "DatumDefectError",
     "AdjustmentDivergedError",
     "NetworkFormatError",
+    "IsdFormatError",
     "OrientationKernelError",
     "OrientationCoverageError",
     "OrientationConflictError",

@@ -460,11 +460,11 @@ def image_support_from_ale_dict(d: Mapping[str, Any], source: str = "") -> "Imag
     positions, velocities = _resample_states(pos_t, pos, vel, times)
     q_p, w_p = _resample_pointing(pointing.times, pointing.quaternions, pointing.angular_velocities, times)
     # the body rotation is smooth (PCK) and its angular velocities are exact: Hermite on SO(3)
-    body_interp = RotationHermite(body.times, body.quaternions, body.angular_velocities)
-    q_b, w_b = body_interp(times)
-    body_matrices = body.constant_rotation @ quat_to_matrix(q_b)
-    body_xf = state_transform(body_matrices, w_b)
-    sun_body = body.constant_rotation @ body_interp.matrices(sun_t)
+    body_table = RotationTable(body.time_dependent_frames, body.times, body.quaternions, body.angular_velocities,
+                               body.constant_frames, body.constant_rotation).interpolated(times)
+    body_xf = body_table.state_transforms()
+    sun_body = body.constant_rotation @ RotationHermite(body.times, body.quaternions,
+                                                        body.angular_velocities).matrices(sun_t)
 
     focal = doc.number(doc.block(d, "focal_length_model"), "focal_length", "focal_length_model.")
     if focal <= 0.0:
@@ -487,8 +487,7 @@ def image_support_from_ale_dict(d: Mapping[str, Any], source: str = "") -> "Imag
         velocities=velocities,
         pointing=RotationTable(pointing.time_dependent_frames, times, q_p, w_p, pointing.constant_frames,
                                pointing.constant_rotation),
-        body_rotation=RotationTable(body.time_dependent_frames, times, q_b, w_b, body.constant_frames,
-                                    body.constant_rotation),
+        body_rotation=body_table,
         body_state_rotations=body_xf, sun_times=sun_t, sun_positions=sun_pos, sun_velocities=sun_vel,
         radii=np.array([a, a, c]), body_frame=_body_frame_name(doc, naif, own), focal_length=focal,
         focal2pixel_lines=f2l.tolist(), focal2pixel_samples=f2s.tolist(),

@@ -215,8 +215,12 @@ class Driver:
 
         body_code, body_frame = q.body_frame(body)
         pointing = self._rotation_table(self.sensor_frame, times)
-        body_rot = self._rotation_table(body_code, times)
-        xf = q.state_rotations("J2000", body_frame, times)
+        # The body rotation is sampled where the ISD lists it (first and last epoch, as ALE does) and
+        # interpolated to the other epochs exactly as a reader of the ISD file does: SPICE's own
+        # per-epoch values differ from that smooth rotation only by its rounding noise (~8e-13 rad),
+        # and an image written and read back stays the same camera.
+        body_rot = self._rotation_table(body_code, sun_times).interpolated(times)
+        xf = body_rot.state_transforms()
 
         io = self.interior()
         return ImageSupport(
