@@ -268,3 +268,28 @@ def test_pickle_leaves_the_eo_table_behind_and_answers_the_same() -> None:
     assert back._table is None and cam._table is not None   # the original keeps its cache
     after = back.ground_to_image(xyz)
     assert np.abs(after[0] - before[0]).max() <= 1e-9 and np.abs(after[1] - before[1]).max() <= 1e-9
+
+
+def test_round_trip_at_the_first_lines_with_a_large_boresight_offset():
+    """Kaguya TC's distortion moves the boresight by ~10 lines: with an EO covering only the image,
+    the undistorted exposure plane of the first lines lies beyond the searched lines, and those
+    points used to come back NaN (regression)."""
+    from lunarmap.camera import InteriorOrientation, LineScanCamera, Shape
+
+    pitch, line_time, n_lines = 0.007, 0.0065, 400
+    io = InteriorOrientation(focal_length=72.45, focal2pixel_lines=(0.0, 1.0 / pitch, 0.0),
+                             focal2pixel_samples=(0.0, 0.0, 1.0 / pitch), detector_center_line=0.0,
+                             detector_center_sample=1604.0, starting_detector_line=1.0, n_lines=n_lines,
+                             n_samples=3208, distortion_model="kaguyalism",
+                             distortion_coefficients={"x": [-9.6499e-4, 9.8441e-4, 8.5773e-6, -3.7438e-6],
+                                                      "y": [-1.3796e-3, 1.3502e-5, 2.7251e-6, -6.1938e-6],
+                                                      "boresight_x": -0.0725, "boresight_y": 0.0214},
+                             pixel_pitch=pitch, name="TC-like")
+    half = 0.5 * n_lines * line_time
+    eo = polar_orbit_eo(lat_center=-20.0, lon=40.0, altitude=100e3, half_span=half, step=0.01)
+    cam = LineScanCamera(io, eo, Shape.moon(), line_times=(-half, line_time))
+    lines = np.array([0.0, 0.5, 1.0, 2.0, 3.0, 5.0, 200.0, 399.5, 400.0])
+    samples = np.linspace(0.0, 3208.0, lines.size)
+    back_l, back_s = cam.ground_to_image(cam.image_to_ground(lines, samples, height=500.0))
+    np.testing.assert_allclose(back_l, lines, atol=1e-6)
+    np.testing.assert_allclose(back_s, samples, atol=1e-6)

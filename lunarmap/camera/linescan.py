@@ -357,10 +357,20 @@ class LineScanCamera(_CameraModel):
         change = pos_side[:, 1:] != pos_side[:, :-1]
         has = change.any(axis=1)
         k = np.argmax(change, axis=1)
-        idx = np.flatnonzero(has)
+        # Distortion (e.g. Kaguya TC's boresight offset of ~10 lines) can move the exact root inside the
+        # table while the undistorted plane crosses just beyond one end: such points, whose plane
+        # distance at an end node is within two coarse cells of zero, try the end cell; the bracketed
+        # path then repairs or rejects the bracket on the exact residual.
+        last = dist.shape[1] - 1
+        near_first = np.abs(dist[:, 0]) < 2.0 * np.abs(dist[:, 1] - dist[:, 0])
+        near_last = np.abs(dist[:, last]) < 2.0 * np.abs(dist[:, last] - dist[:, last - 1])
+        edge = ~has & (near_first | near_last)
+        k = np.where(edge & ~near_first, last - 1, np.where(edge, 0, k))
+        idx = np.flatnonzero(has | edge)
         if idx.size == 0:
             return line, sample, ok
         k = k[idx]
+        on_edge = edge[idx]
         line0, step = tab["line0"], tab["step"]
         a = line0 + step * cidx[k].astype(float)
         b = line0 + step * cidx[k + 1].astype(float)
@@ -372,7 +382,12 @@ class LineScanCamera(_CameraModel):
             x_est = a + (b - a) * (da / (da - db))
         lin = np.full(idx.size, np.nan)
         slope = np.full(idx.size, np.nan)
-        fast = self._fast_secant(tab, g[idx], x_est, lin, slope)
+        fast = np.zeros(idx.size, dtype=bool)
+        inner = np.flatnonzero(~on_edge)
+        if inner.size:
+            lin_i, slope_i = lin[inner], slope[inner]
+            fast[inner] = self._fast_secant(tab, g[idx[inner]], x_est[inner], lin_i, slope_i)
+            lin[inner], slope[inner] = lin_i, slope_i
         slow = np.flatnonzero(~fast)
         if slow.size:
             lin[slow], slope[slow], found = self._bracketed_secant(tab, g[idx[slow]], a[slow], b[slow])
