@@ -1,5 +1,21 @@
 """lunarmap: planetary photogrammetry from SPICE kernels to adjusted orientations.
 
+The calls that take a user from image labels to adjusted kernels::
+
+    import lunarmap
+
+    cam = lunarmap.load_camera("M103595705LE.lbl", "lro_nac.tm")        # label + kernels -> camera
+    cam = lunarmap.camera_from_isd_file("M103595705LE.json")            # or an ALE/usgscsm ISD, no SPICE
+    rpc = lunarmap.fit_rpc(cam).model                                   # cubic RFM of the camera
+    ties = lunarmap.find_tiepoints(images, cameras)                     # tie-point table (dask)
+    block = lunarmap.build_block(cameras, ties, navigation=spec)        # adjustment block
+    result = lunarmap.solve(block)                                      # adjusted sensors, precision
+    out = lunarmap.write_adjusted(result, isds, "out/", "lro_nac.tm")   # adjusted SPK + CK + meta-kernel
+
+Everything else stays in its package (:mod:`lunarmap.camera`, :mod:`lunarmap.rpc`,
+:mod:`lunarmap.matching`, :mod:`lunarmap.adjust`, ...). Library code logs to the ``lunarmap``
+logger (a ``NullHandler`` is installed: configure ``logging`` to see it) and never prints.
+
 Conventions
 -----------
 =====================  ==========================================================
@@ -20,9 +36,61 @@ Data flow: ``spice`` (kernels) -> ``orientation`` -> ``camera`` -> rpc -> matchi
 -> adjust -> evaluate -> workflows. Nothing after ``orientation`` calls SPICE.
 """
 
+from __future__ import annotations
+
+import importlib
+import logging
+from typing import Any
+
 from . import errors
 from .errors import LunarmapError
 
 __version__ = "0.1.0"
 
-__all__ = ["errors", "LunarmapError", "__version__"]
+logging.getLogger(__name__).addHandler(logging.NullHandler())
+
+# Public calls, imported on first use so that ``import lunarmap`` stays light (no dask, numba,
+# SPICE until needed): name -> (module, attribute).
+_LAZY = {
+    "image_support": ("lunarmap.orientation.drivers", "image_support"),
+    "ImageSupport": ("lunarmap.orientation.isd", "ImageSupport"),
+    "camera_from_isd": ("lunarmap.camera.factory", "camera_from_isd"),
+    "camera_from_isd_file": ("lunarmap.camera.factory", "camera_from_isd_file"),
+    "load_camera": ("lunarmap.camera.factory", "load_camera"),
+    "SensorModel": ("lunarmap.camera.sensor", "SensorModel"),
+    "fit_rpc": ("lunarmap.rpc", "fit_rpc"),
+    "find_tiepoints": ("lunarmap.matching", "find_tiepoints"),
+    "network_from_tiepoints": ("lunarmap.adjust", "network_from_tiepoints"),
+    "build_block": ("lunarmap.adjust", "build_block"),
+    "NavigationSpec": ("lunarmap.adjust", "NavigationSpec"),
+    "write_adjusted": ("lunarmap.adjust", "write_adjusted"),
+}
+
+__all__ = ["errors", "LunarmapError", "__version__", "solve", *_LAZY]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        module, attr = _LAZY[name]
+        value = getattr(importlib.import_module(module), attr)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'lunarmap' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
+
+def solve(block_or_problem: Any, options: Any = None, **kwargs: Any) -> Any:
+    """Adjust a :class:`~lunarmap.adjust.Block` (returns a :class:`~lunarmap.adjust.BlockResult`) or a
+    :class:`~lunarmap.adjust.BundleProblem` (returns an :class:`~lunarmap.adjust.AdjustmentResult`).
+
+    ``options`` is a :class:`~lunarmap.adjust.SolverOptions`; keyword arguments go to
+    :func:`lunarmap.adjust.solve` (``reweight``, ``callback``).
+    """
+    from . import adjust
+
+    if isinstance(block_or_problem, adjust.Block):
+        return adjust.solve_block(block_or_problem, options, **kwargs)
+    return adjust.solve(block_or_problem, options, **kwargs)

@@ -4,7 +4,8 @@ control points and full posterior precision.
 * :func:`build_block` / :func:`solve_block` -- named images on their own sensor models
   (:class:`SensorImageModel`: frame and line-scan cameras with their distortion, RFMs), a control
   network (tie points from the matcher, control and check points), navigation observations with
-  per-orbit offsets and drifts (:class:`NavigationSpec`); adjusted sensors out;
+  per-orbit offsets and drifts (:class:`NavigationSpec`); adjusted sensors out, written back as ISDs
+  and SPICE kernels layered over the original set (:func:`write_adjusted`);
 * :func:`solve` -- the Levenberg-Marquardt solver on a :class:`BundleProblem` (Schur complement,
   sparse Cholesky); :class:`AdjustmentResult` and its :meth:`~AdjustmentResult.precision`;
 * :class:`FrameModel` and the BAL reader/writer -- the BAL collinearity model, kept for benchmarks
@@ -23,6 +24,7 @@ from ..errors import (
 from .bal import BALData, bal_to_problem, problem_to_bal_cameras, read_bal, write_bal
 from .block import Block, BlockResult, NavigationSpec, build_block, navigation_observations, solve_block
 from .collinearity import FrameModel, frame_jacobians, project_frame
+from .export import AdjustedOrientation, adjusted_image_support, write_adjusted
 from .control_points import lonlat_covariance_to_xyz, lonlat_priors
 from .factor import available_backends, factorize
 from .intersection import IntersectionResult, intersect_points
@@ -35,7 +37,7 @@ from .solver import AdjustmentState, SolverOptions, solve
 
 __all__ = [
     "Block", "BlockResult", "NavigationSpec", "build_block", "solve_block", "navigation_observations",
-    "SensorImageModel", "ImageModel",
+    "SensorImageModel", "ImageModel", "AdjustedOrientation", "adjusted_image_support", "write_adjusted",
     "BALData", "read_bal", "write_bal", "bal_to_problem", "problem_to_bal_cameras",
     "FrameModel", "frame_jacobians", "project_frame",
     "AdjustmentError", "AdjustmentInputError", "InsufficientObservationsError", "UnobservedParameterError",

@@ -1,4 +1,5 @@
-"""Rigorous sensor models: interior orientation, distortion, frame and line-scan cameras."""
+"""Sensor models: the SensorModel protocol, interior orientation, distortion, frame and line-scan cameras,
+their correction parameters."""
 
 from .distortion import (
     DISTORTION_MODELS,
@@ -10,7 +11,7 @@ from .distortion import (
     distortion_from_interior,
     make_distortion,
 )
-from .factory import camera_from_isd, camera_from_isd_file
+from .factory import camera_from_isd, camera_from_isd_file, load_camera
 from .frame import FrameCamera, focal_to_image, image_to_focal
 from .geodesy import (
     enu_basis,
@@ -22,8 +23,10 @@ from .geodesy import (
     xyz_to_lonlat_height,
 )
 from .interior import InteriorOrientation
+from .corrections import AffineCorrectedSensor, AffineCorrections, FrameCorrections, LineScanCorrections
 from .intersect import DtmSampler, intersect_dtm, intersect_ellipsoid, intersect_sphere
 from .linescan import LineScanCamera, LineTimes
+from .sensor import Corrections, SensorModel
 from .shape import MOON_RADIUS, MOON_RADIUS_HISTORICAL, Shape
 
 __all__ = [
@@ -36,5 +39,7 @@ __all__ = [
     "intersect_ellipsoid", "intersect_sphere", "intersect_dtm", "DtmSampler",
     "FrameCamera", "image_to_focal", "focal_to_image",
     "LineScanCamera", "LineTimes",
-    "camera_from_isd", "camera_from_isd_file",
+    "camera_from_isd", "camera_from_isd_file", "load_camera",
+    "SensorModel", "Corrections", "FrameCorrections", "LineScanCorrections", "AffineCorrections",
+    "AffineCorrectedSensor",
 ]

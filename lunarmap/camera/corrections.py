@@ -340,15 +340,13 @@ class FrameCorrections:
 
     def apply(self, params: ArrayLike) -> Any:
         """A new :class:`FrameCamera` whose EO carries the corrections (at every EO sample)."""
-        from .frame import FrameCamera
-
         p = _params(params, 6, "FrameCorrections")
         cam = self.sensor
         E = rotvec_to_matrix(p[0:3])
         eo = cam.eo
         R = quat_to_matrix(eo.quaternions) @ E.T        # R' = R exp([w]x)^T, so R'^T = exp([w]x) R^T
         new = _replace_eo(eo, eo.positions + p[3:6], eo.velocities, matrix_to_quat(R), "frame EO corrections")
-        return FrameCamera(cam.interior, new, cam.shape, time=cam.time)
+        return type(cam)(cam.interior, new, cam.shape, time=cam.time)
 
     @staticmethod
     def stack(items: Sequence["FrameCorrections"]) -> FrameStack:
@@ -484,8 +482,6 @@ class LineScanCorrections:
         the corrected trajectory as closely as the original follows its own (corrections are
         low-order polynomials in time).
         """
-        from .linescan import LineScanCamera
-
         p = _params(params, self.n_params, "LineScanCorrections")
         cam = self.sensor
         eo = cam.eo
@@ -500,7 +496,7 @@ class LineScanCorrections:
         R = quat_to_matrix(eo.quaternions) @ np.swapaxes(E, -1, -2)
         new = _replace_eo(eo, eo.positions + powers @ P[:, 1, :], eo.velocities + dpow @ P[:, 1, :],
                           matrix_to_quat(R), f"line-scan EO corrections, degree {self.degree}")
-        return LineScanCamera(cam.interior, new, cam.shape, line_times=cam.line_times, workers=cam.workers)
+        return type(cam)(cam.interior, new, cam.shape, line_times=cam.line_times, workers=cam.workers)
 
 
 # -- affine image-space corrections (RFMs, or any sensor) ---------------------------------------

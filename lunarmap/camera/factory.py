@@ -13,13 +13,18 @@ import os
 
 import numpy as np
 
+from typing import TYPE_CHECKING
+
 from ..orientation.isd import ImageSupport
 from .frame import FrameCamera
 from .interior import InteriorOrientation
 from .linescan import LineScanCamera, LineTimes
 from .shape import Shape
 
-__all__ = ["camera_from_isd", "camera_from_isd_file", "interior_from_isd", "shape_from_isd"]
+if TYPE_CHECKING:
+    from ..spice import KernelSet
+
+__all__ = ["camera_from_isd", "camera_from_isd_file", "load_camera", "interior_from_isd", "shape_from_isd"]
 
 
 def interior_from_isd(isd: ImageSupport, distortion: bool = True) -> InteriorOrientation:
@@ -99,3 +104,21 @@ def camera_from_isd_file(path: str | os.PathLike[str], shape: Shape | None = Non
         The file is not a readable ISD; the message names the file and the key.
     """
     return camera_from_isd(ImageSupport.read_json(path), shape=shape, distortion=distortion)
+
+
+def load_camera(label: str | os.PathLike[str], kernels: str | os.PathLike[str] | "KernelSet",
+                shape: Shape | None = None, distortion: bool = True) -> FrameCamera | LineScanCamera:
+    """The rigorous camera of an image from its label and kernels (one SPICE pass, then plain numpy).
+
+    Parameters
+    ----------
+    label : path-like
+        ISIS cube/label or PDS3 label (see :func:`lunarmap.orientation.drivers.image_support`).
+    kernels : path-like or KernelSet
+        Meta-kernel or kernel set.
+    shape, distortion
+        As for :func:`camera_from_isd`.
+    """
+    from ..orientation.drivers import image_support
+
+    return camera_from_isd(image_support(label, kernels), shape=shape, distortion=distortion)

@@ -31,6 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import GeometryError, InvalidInputError
 from ..orientation.exterior import ExteriorOrientation
+from .corrections import FrameCorrections
 from .distortion import Distortion, distortion_from_interior
 from .interior import InteriorOrientation
 from .intersect import DtmSampler, OnMiss, intersect_dtm, intersect_ellipsoid
@@ -369,8 +370,6 @@ class FrameCamera(_CameraModel):
         ``degree`` is accepted for the :class:`~lunarmap.camera.sensor.SensorModel` protocol and ignored
         (one exposure has no time dependence).
         """
-        from .corrections import FrameCorrections
-
         return FrameCorrections(self)
 
     def sensor_position(self, line: ArrayLike, sample: ArrayLike) -> Array:

@@ -50,6 +50,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ConvergenceError, InvalidInputError
 from ..orientation.exterior import ExteriorOrientation
+from .corrections import LineScanCorrections
 from .frame import _CameraModel, _check_ground_on_miss, _finite_pixels, _finite_xyz
 from .interior import InteriorOrientation
 from .intersect import OnMiss
@@ -219,8 +220,6 @@ class LineScanCamera(_CameraModel):
 
         See :class:`~lunarmap.camera.corrections.LineScanCorrections`; ``None`` means degree 1.
         """
-        from .corrections import LineScanCorrections
-
         return LineScanCorrections(self, 1 if degree is None else degree)
 
     # -- image to ground -------------------------------------------------

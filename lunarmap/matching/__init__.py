@@ -7,7 +7,7 @@ from .interest import InterestPoints, foerstner, invalid_mask
 from .lsm import LsmResult, lsm_match
 from .ncc import NccResult, ncc_match, window_offsets
 from .pairs import STATUS, MatchParams, PairMatches, as_array, match_points
-from .parallel import WORKER_ENVIRON, tiepoint_graph
+from .parallel import WORKER_ENVIRON, find_tiepoints, tiepoint_graph
 from .predict import Prediction, predict_conjugates
 from .pyramid import build_pyramid, downsample
 from .ransac import RansacParams, ransac_local_affine
@@ -17,7 +17,6 @@ from .tiepoints import (
     TiePointParams,
     assemble_tiepoints,
     detect_tile,
-    find_tiepoints,
     match_pair,
     read_tiepoints,
     tile_windows,

@@ -37,7 +37,7 @@ from .pairs import PairMatches, as_array
 from .tiepoints import (DetectParams, TiePointParams, assemble_tiepoints, detect_tile, match_pair, merge_points,
                          tile_windows)
 
-__all__ = ["tiepoint_graph", "WORKER_ENVIRON"]
+__all__ = ["tiepoint_graph", "find_tiepoints", "WORKER_ENVIRON"]
 
 #: Environment for dask worker processes running the chain (one BLAS/OpenMP thread each, no
 #: ``MALLOC_TRIM_THRESHOLD_``); the same as :data:`lunarmap.rpc.parallel.WORKER_ENVIRON`.
@@ -122,3 +122,44 @@ def tiepoint_graph(images: Mapping[str, Any], sensors: Mapping[str, Any],
     # Image indices travel as plain values (a delayed tuple per pair would be one more task each).
     return dask.delayed(_assemble, pure=True)([(index[a], index[b]) for a, b in pairs], matched, names,
                                               params.track_tol)
+
+
+def find_tiepoints(images: Mapping[str, xr.DataArray | NDArray], sensors: Mapping[str, Any],
+                   pairs: Sequence[tuple[str, str]] | None = None, height: Any = 0.0,
+                   params: TiePointParams | None = None, scheduler: Any = "sync") -> xr.Dataset:
+    """Tie points of a set of images (one dask task per tile and per image pair).
+
+    Parameters
+    ----------
+    images : mapping name -> xarray.DataArray or ndarray
+        Images (``line``, ``sample``), grey levels; NaN marks invalid pixels.
+    sensors : mapping name -> SensorModel
+        Sensor model of each image (cameras or RPCs).
+    pairs : sequence of (name, name), optional
+        Pairs to match (points of the first are matched into the second);
+        default: every pair ``(a, b)`` with ``a`` before ``b``.
+    height : float or xarray.DataArray
+        Prediction height (metres) or coarse DTM.
+    params : TiePointParams
+    scheduler : str or distributed.Client
+        ``"sync"`` (serial), ``"threads"``, ``"processes"`` or a ``distributed.Client``
+        (start its worker processes with :data:`lunarmap.matching.parallel.WORKER_ENVIRON`,
+        see :mod:`lunarmap.matching.parallel`).
+
+    Returns
+    -------
+    xarray.Dataset
+        The tie-point table.
+    """
+    if hasattr(scheduler, "compute") and hasattr(scheduler, "scatter"):  # a distributed.Client
+        # In-memory pixels go to the workers once, by scatter, instead of inside the task graph
+        # (which the scheduler would receive, store and forward: distributed warns past 10 MB).
+        pixels = {}
+        for n, img in images.items():
+            data = img.data if isinstance(img, xr.DataArray) else img
+            if isinstance(data, np.ndarray):
+                pixels[n] = scheduler.scatter(data, hash=True)
+        graph = tiepoint_graph(images, sensors, pairs=pairs, height=height, params=params, pixels=pixels)
+        return scheduler.compute(graph).result()
+    graph = tiepoint_graph(images, sensors, pairs=pairs, height=height, params=params)
+    return graph.compute(scheduler=scheduler)

@@ -15,8 +15,8 @@ The result is an ``xarray.Dataset`` with one row per observation:
 ``correlation``    LSM correlation coefficient
 =================  =======================================================
 
-:func:`find_tiepoints` builds the dask graph of :mod:`.parallel` and computes
-it with any scheduler (``"sync"`` for serial, a ``distributed.Client``...).
+:func:`~lunarmap.matching.parallel.find_tiepoints` runs these steps as a dask graph with any
+scheduler (``"sync"`` for serial, a ``distributed.Client``...).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from .ransac import RansacParams, ransac_local_affine
 from .tracks import Observations, build_tracks
 
 __all__ = ["DetectParams", "TiePointParams", "detect_tile", "tile_windows", "match_pair", "assemble_tiepoints",
-           "find_tiepoints", "write_tiepoints", "read_tiepoints"]
+           "write_tiepoints", "read_tiepoints"]
 
 
 @dataclass
@@ -170,49 +170,6 @@ def assemble_tiepoints(results: Sequence[tuple[int, int, PairMatches]], names: S
                "source": "lunarmap.matching"},
     )
     return ds
-
-
-def find_tiepoints(images: Mapping[str, xr.DataArray | NDArray], sensors: Mapping[str, Any],
-                   pairs: Sequence[tuple[str, str]] | None = None, height: Any = 0.0,
-                   params: TiePointParams | None = None, scheduler: Any = "sync") -> xr.Dataset:
-    """Tie points of a set of images (one dask task per tile and per image pair).
-
-    Parameters
-    ----------
-    images : mapping name -> xarray.DataArray or ndarray
-        Images (``line``, ``sample``), grey levels; NaN marks invalid pixels.
-    sensors : mapping name -> SensorModel
-        Sensor model of each image (cameras or RPCs).
-    pairs : sequence of (name, name), optional
-        Pairs to match (points of the first are matched into the second);
-        default: every pair ``(a, b)`` with ``a`` before ``b``.
-    height : float or xarray.DataArray
-        Prediction height (metres) or coarse DTM.
-    params : TiePointParams
-    scheduler : str or distributed.Client
-        ``"sync"`` (serial), ``"threads"``, ``"processes"`` or a ``distributed.Client``
-        (start its worker processes with :data:`lunarmap.matching.parallel.WORKER_ENVIRON`,
-        see :mod:`lunarmap.matching.parallel`).
-
-    Returns
-    -------
-    xarray.Dataset
-        The tie-point table.
-    """
-    from .parallel import tiepoint_graph
-
-    if hasattr(scheduler, "compute") and hasattr(scheduler, "scatter"):  # a distributed.Client
-        # In-memory pixels go to the workers once, by scatter, instead of inside the task graph
-        # (which the scheduler would receive, store and forward: distributed warns past 10 MB).
-        pixels = {}
-        for n, img in images.items():
-            data = img.data if isinstance(img, xr.DataArray) else img
-            if isinstance(data, np.ndarray):
-                pixels[n] = scheduler.scatter(data, hash=True)
-        graph = tiepoint_graph(images, sensors, pairs=pairs, height=height, params=params, pixels=pixels)
-        return scheduler.compute(graph).result()
-    graph = tiepoint_graph(images, sensors, pairs=pairs, height=height, params=params)
-    return graph.compute(scheduler=scheduler)
 
 
 def write_tiepoints(ds: xr.Dataset, path: str | os.PathLike) -> Path:

@@ -10,8 +10,10 @@ The document holds, in J2000 and km (see the shared kernel README, section 5):
   first and last epoch;
 * ``sun_position``, the interior orientation and the image timing.
 
-:func:`image_support_from_ale_dict` rebuilds an
-:class:`~lunarmap.orientation.isd.ImageSupport` from it:
+:func:`image_support_fields` gives the fields of an
+:class:`~lunarmap.orientation.isd.ImageSupport` from it (``ImageSupport.from_ale_dict`` /
+``ImageSupport.read_json`` build the object; this module does not import it, so the two do not
+import each other):
 
 * positions and pointing are put on one set of epochs, the union of both
   tables' epochs (pointing epochs within :data:`EPOCH_MERGE_TOLERANCE` of a
@@ -54,7 +56,7 @@ import os
 from collections.abc import Iterator, Mapping
 from numbers import Integral, Real
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -62,12 +64,11 @@ from scipy.interpolate import CubicHermiteSpline
 
 from ..errors import InvalidInputError, IsdFormatError
 from .rotation import align_quaternion_signs, normalize_quat, quat_to_matrix
-from .rotation_hermite import RotationHermite, quat_exp, quat_log, quat_multiply, state_transform
+from .rotation_hermite import RotationHermite, quat_exp, quat_log, quat_multiply
+from .rotation_table import RotationTable
 
-if TYPE_CHECKING:
-    from .isd import ImageSupport
 
-__all__ = ["image_support_from_ale_dict", "read_isd_json", "SENSOR_MODELS", "EPOCH_MERGE_TOLERANCE",
+__all__ = ["image_support_fields", "read_isd_document", "SENSOR_MODELS", "EPOCH_MERGE_TOLERANCE",
            "KNOWN_BODY_FRAMES"]
 
 #: usgscsm ``name_model`` -> lunarmap sensor model.
@@ -398,8 +399,8 @@ def _distortion(doc: _Doc, d: Mapping[str, Any]) -> dict[str, Any]:
     return {str(model): json.loads(json.dumps(coeffs))}
 
 
-def image_support_from_ale_dict(d: Mapping[str, Any], source: str = "") -> "ImageSupport":
-    """Build an :class:`~lunarmap.orientation.isd.ImageSupport` from an ISD document.
+def image_support_fields(d: Mapping[str, Any], source: str = "") -> dict[str, Any]:
+    """The :class:`~lunarmap.orientation.isd.ImageSupport` fields of an ISD document (keyword arguments).
 
     Parameters
     ----------
@@ -414,7 +415,6 @@ def image_support_from_ale_dict(d: Mapping[str, Any], source: str = "") -> "Imag
         Missing key, wrong type or shape, non-finite number, unknown ``name_model``
         or distortion model, inconsistent timing; the file and the key are named.
     """
-    from .isd import ImageSupport, RotationTable  # isd imports this module lazily
 
     doc = _Doc(source)
     if not isinstance(d, Mapping):
@@ -480,7 +480,7 @@ def image_support_from_ale_dict(d: Mapping[str, Any], source: str = "") -> "Imag
     if source:
         provenance["isd_file"] = source
 
-    return ImageSupport(
+    return dict(
         model=model, name_platform=doc.string(d, "name_platform"), name_sensor=doc.string(d, "name_sensor"),
         image_lines=lines, image_samples=samples, center_ephemeris_time=center,
         starting_ephemeris_time=start, line_period=line_period, times=times, positions=positions,
@@ -504,15 +504,15 @@ def image_support_from_ale_dict(d: Mapping[str, Any], source: str = "") -> "Imag
     )
 
 
-def read_isd_json(path: str | os.PathLike[str]) -> "ImageSupport":
-    """Read an ISD JSON file (ALE's layout); see :func:`image_support_from_ale_dict`.
+def read_isd_document(path: str | os.PathLike[str]) -> tuple[Any, str]:
+    """The parsed JSON document of an ISD file and its name (see :func:`image_support_fields`).
 
     Raises
     ------
     FileNotFoundError
         No such file.
     IsdFormatError
-        Not JSON, or not a readable ISD; the file and the key are named.
+        Not UTF-8 text or not JSON; the file is named.
     """
     p = Path(path)
     if not p.is_file():
@@ -526,4 +526,4 @@ def read_isd_json(path: str | os.PathLike[str]) -> "ImageSupport":
         d = json.loads(text)
     except json.JSONDecodeError as err:
         raise IsdFormatError(f"ISD {p}: malformed JSON at line {err.lineno}, column {err.colno}: {err.msg}") from None
-    return image_support_from_ale_dict(d, source=str(p))
+    return d, str(p)
