@@ -44,6 +44,7 @@ __all__ = [
     "DatumDefectError",
     "AdjustmentDivergedError",
     "NetworkFormatError",
+    "BlockMissionError",
 ]
 
 
@@ -192,3 +193,9 @@ class AdjustmentDivergedError(AdjustmentError, ConvergenceError):
 
 class NetworkFormatError(AdjustmentInputError):
     """A control-network file or dataset is malformed: missing variable, bad point type, index out of range."""
+
+
+# --- Synthetic block mission (lunarmap.synthetic.block, lunarmap.simulate.block) ---
+
+class BlockMissionError(InvalidInputError, FileNotFoundError):
+    """A synthetic block-mission folder is missing, incomplete or does not match its manifest."""
