@@ -69,7 +69,7 @@ PASS_HALF_WIDTH = 300.0
 #: Default number of orbits.
 BLOCK_ORBITS = 3
 #: Lines of each pushbroom image.
-PUSHBROOM_LINES = 640
+PUSHBROOM_LINES = 512
 #: Along-track distance between frame_a and frame_b, in frame footprints.
 FRAME_ADVANCE = 0.4
 #: Record spacing of the truth SPK (continuous over the coverage) and CK (per pass), s.

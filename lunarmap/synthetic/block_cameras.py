@@ -4,23 +4,23 @@ All three sit on the LUNARMAP-SIM bus and have an instantaneous field of view
 of about 20 microradians, i.e. a ground sample distance of about 1 m from the
 50 km orbit, so that one DTM and albedo map serve all images and any two
 images can be matched against each other. Detector sizes are small
-(640 or 512 pixels across) so that a whole block renders in about a minute.
+(512 or 384 pixels across) so that a whole block renders in about a minute.
 
 Each camera carries a real distortion model, scaled to its small focal plane
 so that it moves the outermost pixels by about one pixel (and so matters):
 
 * ``SIM_BLK_NAC`` - LRO NAC's ``lrolrocnac`` model, ``dy = uy (1 + k1 uy^2)``
-  approximately; ``k1 = 6.0e-4 mm^-2`` moves the detector ends
-  (``|y| = 2.24 mm``) by ``k1 y^3 = 6.7e-3 mm = 0.96 px``.
+  approximately; ``k1 = 1.2e-3 mm^-2`` moves the detector ends
+  (``|y| = 1.792 mm``) by ``k1 y^3 = 6.9e-3 mm = 0.99 px`` (LRO NAC-L: 1.81e-5).
 * ``SIM_BLK_TC`` - Kaguya TC's ``kaguyalism`` model with TC1's coefficients
   (``SEL_TC_V01.TI``, ``INS-131351_DISTORTION_COEF_X/Y`` and ``BORESIGHT``)
-  rescaled from TC1's 14.3 mm half-detector to this 2.24 mm one:
-  ``a_k' = c a_k s^k`` with ``s = 14.336 / 2.24 = 6.4`` (so the polynomial has
+  rescaled from TC1's 14.3 mm half-detector to this 1.79 mm one:
+  ``a_k' = c a_k s^k`` with ``s = 14.336 / 1.792 = 8`` (so the polynomial has
   TC1's shape across the detector) and ``c = 0.37`` (so its size is about one
   pixel: the across-track term reaches 0.37 * 18.9 um = 7.0 um = 1.0 px at the
   detector ends); the boresight offsets are TC1's times ``c``.
 * ``SIM_BLK_FRAME`` - the ISIS ``OD_K`` radial model of Clementine UVVIS with
-  ``k1 = -4.0e-5 mm^-2`` (UVVIS: -2.42e-5): at the corners (``r = 8.33 mm``)
+  ``k1 = -9.4e-5 mm^-2`` (UVVIS: -2.42e-5): at the corners (``r = 6.25 mm``)
   ``|k1| r^3 = 0.023 mm = 1.0 px``.
 
 Mountings: the NAC looks along the bus +z axis; the TC is pitched forward and
@@ -59,8 +59,8 @@ KAGUYA_TC1_COEF_X = (-9.6499e-4, 9.8441e-4, 8.5773e-6, -3.7438e-6)
 KAGUYA_TC1_COEF_Y = (-1.3796e-3, 1.3502e-5, 2.7251e-6, -6.1938e-6)
 #: Kaguya TC1 boresight offsets (INS-131351_BORESIGHT x, y), mm.
 KAGUYA_TC1_BORESIGHT_MM = (-0.0725, 0.0214)
-#: Radius scale of the TC1 polynomials: TC1 half-detector (2048 px * 7 um) over SIM_BLK_TC's (320 px * 7 um).
-KAGUYA_SCALE_RADIUS = 6.4
+#: Radius scale of the TC1 polynomials: TC1 half-detector (2048 px * 7 um) over SIM_BLK_TC's (256 px * 7 um).
+KAGUYA_SCALE_RADIUS = 8.0
 #: Size scale of the rescaled TC1 distortion (about 1 px at the detector ends).
 KAGUYA_SCALE_SIZE = 0.37
 
@@ -113,20 +113,20 @@ _FR_PITCH = 0.023  # mm, Clementine UVVIS's
 
 #: LRO-NAC-like pushbroom: detector line along +y (sample), time along +x, as the LROC IK.
 BLOCK_NAC = BlockCameraSpec(
-    name=BLK_NAC_NAME, naif_id=BLK_NAC_ID, camera_type="LINESCAN", samples=640, lines=1,
-    focal_length_mm=350.0, pixel_pitch_mm=_LS_PITCH, boresight_sample=320.5, boresight_line=0.0,
+    name=BLK_NAC_NAME, naif_id=BLK_NAC_ID, camera_type="LINESCAN", samples=512, lines=1,
+    focal_length_mm=350.0, pixel_pitch_mm=_LS_PITCH, boresight_sample=256.5, boresight_line=0.0,
     transx=(0.0, 0.0, _LS_PITCH), transy=(0.0, _LS_PITCH, 0.0),
-    distortion_model="lrolrocnac", od_k=(6.0e-4,),
-    description="pushbroom, 640 samples, f = 350 mm, 7 um pixels (LRO NAC-like, 20 urad IFOV).",
+    distortion_model="lrolrocnac", od_k=(1.2e-3,),
+    description="pushbroom, 512 samples, f = 350 mm, 7 um pixels (LRO NAC-like, 20 urad IFOV).",
 )
 
 #: Kaguya-TC-like pushbroom: samples run along -y, as in the Kaguya TC IK addendum (TRANSY = (0, -p, 0)).
 BLOCK_TC = BlockCameraSpec(
-    name=BLK_TC_NAME, naif_id=BLK_TC_ID, camera_type="LINESCAN", samples=640, lines=1,
-    focal_length_mm=345.0, pixel_pitch_mm=_LS_PITCH, boresight_sample=320.5, boresight_line=0.0,
+    name=BLK_TC_NAME, naif_id=BLK_TC_ID, camera_type="LINESCAN", samples=512, lines=1,
+    focal_length_mm=345.0, pixel_pitch_mm=_LS_PITCH, boresight_sample=256.5, boresight_line=0.0,
     transx=(0.0, 0.0, _LS_PITCH), transy=(0.0, -_LS_PITCH, 0.0),
     distortion_model="kaguyalism", od_k=(0.0,),
-    description="pushbroom, 640 samples, f = 345 mm, 7 um pixels (Kaguya-TC-like, pitched forward).",
+    description="pushbroom, 512 samples, f = 345 mm, 7 um pixels (Kaguya-TC-like, pitched forward).",
     nominal_angles_deg=(0.0, -PITCH_DEG, 0.0),
     coef_x=_scaled(KAGUYA_TC1_COEF_X), coef_y=_scaled(KAGUYA_TC1_COEF_Y),
     boresight_offset_mm=(KAGUYA_SCALE_SIZE * KAGUYA_TC1_BORESIGHT_MM[0],
@@ -135,11 +135,11 @@ BLOCK_TC = BlockCameraSpec(
 
 #: Clementine-UVVIS-like framing camera: samples along +x (along track), lines along +y.
 BLOCK_FRAME = BlockCameraSpec(
-    name=BLK_FRAME_NAME, naif_id=BLK_FRAME_ID, camera_type="FRAME", samples=512, lines=512,
-    focal_length_mm=1150.0, pixel_pitch_mm=_FR_PITCH, boresight_sample=256.5, boresight_line=256.5,
+    name=BLK_FRAME_NAME, naif_id=BLK_FRAME_ID, camera_type="FRAME", samples=384, lines=384,
+    focal_length_mm=1150.0, pixel_pitch_mm=_FR_PITCH, boresight_sample=192.5, boresight_line=192.5,
     transx=(0.0, _FR_PITCH, 0.0), transy=(0.0, 0.0, _FR_PITCH),
-    distortion_model="radial", od_k=(0.0, -4.0e-5, 0.0),
-    description="framing, 512 x 512 pixels, f = 1150 mm, 23 um pixels (Clementine-UVVIS-like, pitched aft).",
+    distortion_model="radial", od_k=(0.0, -9.4e-5, 0.0),
+    description="framing, 384 x 384 pixels, f = 1150 mm, 23 um pixels (Clementine-UVVIS-like, pitched aft).",
     nominal_angles_deg=(0.0, PITCH_DEG, 0.0),
 )
 

@@ -108,7 +108,7 @@ def block_ik(cam: BlockCameraSpec) -> tuple[str, Any]:
                 "  x_ideal = x + a0 + a1 r + a2 r^2 + a3 r^3 + bx,  y_ideal = y + b0 + b1 r + b2 r^2 + b3 r^3 + by,\n"
                 "DISTORTION_COEF_X = (a0..a3), DISTORTION_COEF_Y = (b0..b3) (mm, 1, 1/mm, 1/mm^2) and\n"
                 "(bx, by) = BORESIGHT(1:2) * FOCAL_LENGTH / BORESIGHT(3), mm. The coefficients are TC1's\n"
-                "rescaled to this 4.5 mm detector (see lunarmap.synthetic.block_cameras).")
+                "rescaled to this 3.6 mm detector (see lunarmap.synthetic.block_cameras).")
     return comments, [(sections[0][0], geometry), (sections[1][0], fov), sections[2]]
 
 
