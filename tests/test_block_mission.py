@@ -104,7 +104,9 @@ def test_every_image_centre_sees_the_site_and_convergence(block, cams):
     for n, cam in cams["truth"].items():
         im = block.manifest["images"][n]
         g = cam.image_to_ground(im["lines"] / 2, im["samples"] / 2, height=0.0)
-        tol = 0.1 if im["kind"] == "nac" else 150.0  # the frames are 40 % of a frame apart
+        # measured: NAC 0.01 m; TC 4-10 m (its boresight offsets); frames 88-97 m (0.2 frame along
+        # track either side, and the cameras' misalignments of a few hundredths of a degree)
+        tol = {"nac": 0.1, "tc": 15.0}.get(im["kind"], 120.0)
         assert np.linalg.norm(g - site) < tol, n
         views[n] = cam.sensor_position(im["lines"] / 2, im["samples"] / 2) - site
         views[n] /= np.linalg.norm(views[n])
@@ -360,7 +362,8 @@ def test_images_agree_at_true_conjugates(block, rendered, cams, scene, pair):
         good.append(_ncc(w1, map_coordinates(ib, [lw - 0.5, sw - 0.5], order=1)))
         wrong.append(_ncc(w1, map_coordinates(ib, [lw + 2.5, sw + 2.5], order=1)))
     assert len(good) >= 20
-    assert np.median(good) > 0.85 and np.median(good) - np.median(wrong) > 0.3
+    # measured: median 0.957 / 0.961, minimum 0.93 / 0.92; 3 px off: median 0.12 / 0.14
+    assert np.median(good) > 0.92 and min(good) > 0.8 and np.median(good) - np.median(wrong) > 0.6
 
 
 # -- matching with the navigation cameras ---------------------------------------------------------
@@ -404,7 +407,8 @@ def test_matching_with_navigation_cameras(block, rendered, cams, scene):
         per_pair[key] = per_pair.get(key, 0) + len(rr)
     assert len(per_pair) == 3 and min(per_pair.values()) >= 30, per_pair
     err = np.concatenate(errors)
-    assert np.median(err) < 0.15 and np.percentile(err, 95) < 0.4  # measured ~0.06 and ~0.2 px
+    # measured: 176 / 101 / 101 matches per pair; median 0.041 px, 95th percentile 0.22 px, max 0.48 px
+    assert np.median(err) < 0.1 and np.percentile(err, 95) < 0.35 and err.max() < 1.0
 
 
 # -- check points -----------------------------------------------------------------------------------
