@@ -4,14 +4,15 @@ The LUNARMAP-SIM orbiter (same spacecraft, clock, Moon and Sun as
 :func:`lunarmap.synthetic.write_mission`, a new set of cameras, see
 :mod:`.block_cameras`) flies a near-circular polar orbit about 50 km up.
 On each of ``orbits`` consecutive northbound passes over a mid-latitude
-site (default 55 N, on the sunlit side: the orbit plane is
+site (default 57 N, on the sunlit side: the orbit plane is
 :data:`SUN_OFFSET_DEG` from the subsolar meridian, so the Sun is about 57
 degrees from the zenith) the bus is rolled about its +x axis (roughly the
 ground-track direction) so that the NAC's boresight passes over the site;
 the Moon turns about 1.03 degrees of longitude per orbit, so the tracks of
-consecutive orbits are about 18 km apart at 55 N and the rolls differ by
-about 20 degrees: cross-orbit stereo with convergence angles from about 15 to
-40 degrees. The site sits :data:`SITE_TRACK_OFFSET_M` off the middle orbit's
+consecutive orbits are about 17 km apart at 57 N and the rolls differ by
+about 20 degrees: cross-orbit stereo with convergence angles of about 20
+degrees between consecutive orbits and 40 degrees between the first and the
+third (up to 42 with the cameras' 6-degree pitches). The site sits :data:`SITE_TRACK_OFFSET_M` off the middle orbit's
 ground track (midway between the tracks for an even number of orbits), so
 every pass is rolled.
 
@@ -34,6 +35,7 @@ Everything here is numpy; :mod:`.block_writing` writes the kernels.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -323,9 +325,9 @@ class BlockModel:
     def orbit_frame(self, et: ArrayLike) -> Array:
         """Rows: along-track, cross-track, radial unit vectors (body-fixed) of the true orbit at ``et``.
 
-        Along-track is the ground-relative velocity's horizontal direction,
-        radial points away from the Moon, cross-track completes the
-        right-handed triad (radial x along... : ``cross = radial x along``).
+        Along-track is the horizontal part of the velocity relative to the
+        rotating Moon, radial points away from the Moon's centre and
+        ``cross = radial x along``.
         """
         et = np.asarray(et, dtype=float)
         b = j2000_to_iau_moon(et)
@@ -471,14 +473,11 @@ def build_block_model(seed: int = 0, *, orbits: int = BLOCK_ORBITS, site_latitud
     nav = draw_navigation_errors(rng, [p.epoch for p in passes], windows, spec)
     model = _replace(stub, passes=tuple(passes), navigation=nav,
                      start_et=passes[0].start_et - SPK_MARGIN, end_et=passes[-1].end_et + SPK_MARGIN)
-    images = _plan_images(model, site, east, north)
-    model = _replace(model, images=tuple(images))
+    model = _replace(model, images=tuple(_plan_images(model, site)))
     return _replace(model, site_extent_m=_site_extent(model, east, north))
 
 
 def _replace(model: BlockModel, **changes: Any) -> BlockModel:
-    import dataclasses
-
     return dataclasses.replace(model, **changes)
 
 
@@ -529,7 +528,7 @@ def _pushbroom_line_time(model: BlockModel, cam: BlockCameraSpec, t: float) -> f
     return round(float(np.linalg.norm(g2 - g1) / np.linalg.norm(v)), 9)
 
 
-def _plan_images(model: BlockModel, site: Array, east: Array, north: Array) -> list[BlockImagePlan]:
+def _plan_images(model: BlockModel, site: Array) -> list[BlockImagePlan]:
     out = []
     for p in model.passes:
         along = model.orbit_frame(p.epoch)[0]
