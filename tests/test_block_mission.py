@@ -173,7 +173,8 @@ def _manifest_errors(man: dict, et: float) -> tuple[np.ndarray, np.ndarray]:
         a, per, ph = (np.array(b[k]) for k in ("amplitude", "period_s", "phase_rad"))
         return np.sum(a * np.sin(2 * np.pi * (et - b["epoch_et"]) / per + ph), axis=1)
 
-    dp = np.array(orb["position_offset_m"]) + dt * np.array(orb["position_drift_m_per_s"]) + noise(nav["position_noise"])
+    dp = np.array(orb["position_offset_m"]) + dt * np.array(orb["position_drift_m_per_s"]) + \
+        noise(nav["position_noise"])
     th = np.array(orb["attitude_offset_rad"]) + dt * np.array(orb["attitude_drift_rad_per_s"]) + \
         noise(nav["attitude_noise"])
     return dp, th
@@ -512,3 +513,15 @@ def test_same_seed_same_files_other_seed_differs(block, tmp_path):
     other = sim.build_block_model(1)
     assert not np.allclose(other.navigation.position_offset, block.model.navigation.position_offset)
     assert sim.open_block_mission(again.folder).manifest == again.manifest
+
+
+def test_manifest_that_does_not_match_its_model_is_refused(tmp_path):
+    bm = sim.write_block_mission(tmp_path / "b", seed=2)
+    man = json.loads((bm.folder / "block_mission.json").read_text())
+    man["seed"] = 3  # another seed rebuilds another model than the one the kernels hold
+    (bm.folder / "block_mission.json").write_text(json.dumps(man))
+    with pytest.raises(BlockMissionError, match="does not match"):
+        sim.open_block_mission(bm.folder)
+    (bm.folder / "block_mission.json").write_text("{not json")
+    with pytest.raises(BlockMissionError, match="not a valid block-mission manifest"):
+        sim.open_block_mission(bm.folder)

@@ -55,7 +55,8 @@ from .nav_errors import NavigationErrors, NavigationErrorSpec, draw_navigation_e
 from .orbit import KeplerOrbit
 
 __all__ = [
-    "BlockImagePlan", "BlockPass", "BlockModel", "build_block_model", "block_geometry", "SITE_LATITUDE_DEG", "SUN_OFFSET_DEG",
+    "BlockImagePlan", "BlockPass", "BlockModel", "build_block_model", "block_geometry", "SITE_LATITUDE_DEG",
+    "SUN_OFFSET_DEG",
     "SITE_TRACK_OFFSET_M", "PASS_HALF_WIDTH", "BLOCK_ORBITS", "PUSHBROOM_LINES", "FRAME_ADVANCE",
     "TRUTH_SPK_STEP", "TRUTH_CK_STEP", "NAV_SPK_STEP", "NAV_CK_STEP", "SPK_MARGIN",
 ]
@@ -460,7 +461,8 @@ def build_block_model(seed: int = 0, *, orbits: int = BLOCK_ORBITS, site_latitud
 
     # rolls and reference epochs: the NAC boresight meets the site
     stub = BlockModel(seed=int(seed), orbits=orbits, site_latitude_deg=lat0, site_longitude_deg=lon0,
-                      site_extent_m=0.0, start_et=start, end_et=start, sclk_zero_et=tdb_to_et(textkernels.SCLK_ZERO_TDB),
+                      site_extent_m=0.0, start_et=start, end_et=start,
+                      sclk_zero_et=tdb_to_et(textkernels.SCLK_ZERO_TDB),
                       orbit=orbit, nadir=nadir, passes=(), mounting_angles_deg=mounting, images=(),
                       navigation=None, navigation_spec=spec)  # type: ignore[arg-type]
     site = stub.site_xyz()

@@ -461,8 +461,13 @@ def open_block_mission(folder: str | os.PathLike[str] | BlockMission) -> BlockMi
                                   navigation=_spec(p["navigation"]))
     except (ValueError, KeyError, TypeError) as exc:
         raise BlockMissionError(f"{path} is not a valid block-mission manifest ({exc!r})") from None
-    if sorted(model.image_names) != sorted(man["images"]):
-        raise BlockMissionError(f"{path}: the images listed do not match the model rebuilt from its parameters")
+    # the kernels were written from this model: a different lunarmap version must not reinterpret them
+    epochs = [o.get("reference_et") for o in man.get("orbits", [])]
+    if sorted(model.image_names) != sorted(man["images"]) or len(epochs) != len(model.passes) or any(
+            abs(float(e) - p.epoch) > 1e-6 for e, p in zip(epochs, model.passes)) \
+            or abs(man["site"]["longitude_deg"] - model.site_longitude_deg) > 1e-9:
+        raise BlockMissionError(f"{path}: the model rebuilt from the manifest's seed and parameters does not "
+                                f"match its images, orbits or site (written by another lunarmap version?)")
     for name in [*SHARED_KERNELS, *TRUTH_KERNELS, *NAVIGATION_KERNELS, TRUTH_METAKERNEL, NAVIGATION_METAKERNEL,
                  *(im["label"] for im in man["images"].values())]:
         if not (d / name).is_file():
