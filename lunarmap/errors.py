@@ -51,6 +51,7 @@ __all__ = [
     "OrientationConflictError",
     "MissingClockError",
     "TrajectoryFitError",
+    "BlockMissionError",
 ]
 
 
@@ -239,3 +240,7 @@ class MissingClockError(OrientationKernelError, KernelCoverageError):
 
 class TrajectoryFitError(OrientationKernelError, ConvergenceError):
     """The geometric trajectory reproducing the adjusted (aberration-corrected) positions was not found."""
+# --- Synthetic block mission (lunarmap.synthetic.block, lunarmap.simulate.mission) ---
+
+class BlockMissionError(InvalidInputError, FileNotFoundError):
+    """A synthetic block-mission folder is missing, incomplete or does not match its manifest."""

@@ -415,7 +415,7 @@ class LineScanCamera(_CameraModel):
             with np.errstate(divide="ignore", invalid="ignore"):
                 x2 = x1 - r1 * (x1 - x0) / (r1 - r0)
             ins = np.isfinite(x2) & (x2 >= lo) & (x2 <= hi)
-            act, x0, r0, x1, x2 = act[ins], x0[ins], r0[ins], x1[ins], x2[ins]
+            act, x0, r0, x1, r1, x2 = act[ins], x0[ins], r0[ins], x1[ins], r1[ins], x2[ins]
             r2, _, v2 = self._residual_table(tab, gi[act], x2)
             conv = v2 & ((np.abs(x2 - x1) < _SECANT_TOL) | (np.abs(r2) < 0.1 * _SECANT_TOL))
             lin[act[conv]] = x2[conv]

@@ -8,8 +8,14 @@ for line scanners or ``ExposureDuration`` [ms] for framing cameras;
 ``BORESIGHT_LINE``, ``OD_K``) plus three optional lunarmap ones:
 
 ``INS<id>_LUNARMAP_CAMERA_TYPE``       ``'FRAME'`` or ``'LINESCAN'``
-``INS<id>_LUNARMAP_DISTORTION``  ``'none'``, ``'radial'`` or ``'lrolrocnac'``
+``INS<id>_LUNARMAP_DISTORTION``  ``'none'``, ``'radial'``, ``'lrolrocnac'`` or ``'kaguyalism'``
 ``INS<id>_LIGHTTIME_CORRECTION``       aberration correction of the position
+
+``'kaguyalism'`` reads the Kaguya TC IK's keywords: ``DISTORTION_COEF_X`` and
+``DISTORTION_COEF_Y`` (4 coefficients each, mm based) and the boresight
+offsets from ``BORESIGHT`` scaled to the focal plane (``BORESIGHT[0:2] *
+FOCAL_LENGTH / BORESIGHT[2]`` mm, which is ``BORESIGHT[0:2]`` itself in the
+Kaguya IK, where ``BORESIGHT[2]`` is the focal length).
 
 Boresight keywords are in the ISIS pixel convention (first pixel centre at 1)
 and converted to CSM's by subtracting 0.5 on the sample axis (and on the line
@@ -85,9 +91,22 @@ class GenericDriver(Driver):
             io["optical_distortion"] = {"lrolrocnac": {"coefficients": [float(k if not isinstance(k, list) else k[0])]}}
         elif dist == "radial":
             io["optical_distortion"] = {"radial": {"coefficients": [float(v) for v in self.ik("OD_K")]}}
+        elif dist == "kaguyalism":
+            io["optical_distortion"] = {"kaguyalism": self._kaguyalism(io["focal_length"])}
         elif dist == "none":
             io["optical_distortion"] = {"radial": {"coefficients": [0.0, 0.0, 0.0]}}
         else:
             raise UnknownInstrumentError(f"INS{self.ikid}_LUNARMAP_DISTORTION = {dist!r} is not a distortion model "
-                                         f"lunarmap knows ('none', 'radial', 'lrolrocnac')")
+                                         f"lunarmap knows ('none', 'radial', 'lrolrocnac', 'kaguyalism')")
         return io
+
+    def _kaguyalism(self, focal_length: float) -> dict[str, Any]:
+        """ALE's ``kaguyalism`` block from the IK (coefficients, boresight offsets in mm)."""
+        bore = self.ik("BORESIGHT", [0.0, 0.0, 1.0])
+        if not isinstance(bore, list) or len(bore) != 3 or float(bore[2]) == 0.0:
+            raise UnknownInstrumentError(f"INS{self.ikid}_BORESIGHT must be 3 numbers with a non-zero third one "
+                                         f"for the kaguyalism distortion (label {self.source}), got {bore!r}")
+        scale = focal_length / float(bore[2])
+        return {"x": [float(v) for v in self.ik("DISTORTION_COEF_X")],
+                "y": [float(v) for v in self.ik("DISTORTION_COEF_Y")],
+                "boresight_x": float(bore[0]) * scale, "boresight_y": float(bore[1]) * scale}

@@ -1,0 +1,597 @@
+"""The synthetic imaging block: one site seen on consecutive orbits by three cameras (the truth model).
+
+The LUNARMAP-SIM orbiter (same spacecraft, clock, Moon and Sun as
+:func:`lunarmap.synthetic.write_mission`, a new set of cameras, see
+:mod:`.block_cameras`) flies a near-circular polar orbit about 50 km up.
+On each of ``orbits`` consecutive northbound passes over a mid-latitude
+site (default 57 N, on the sunlit side: the orbit plane is
+:data:`SUN_OFFSET_DEG` from the subsolar meridian, so the Sun is about 57
+degrees from the zenith) the bus is rolled about its +x axis (roughly the
+ground-track direction) so that the NAC's boresight passes over the site;
+the Moon turns about 1.03 degrees of longitude per orbit, so the tracks of
+consecutive orbits are about 17 km apart at 57 N and the rolls differ by
+about 20 degrees: cross-orbit stereo with convergence angles of about 20
+degrees between consecutive orbits and 40 degrees between the first and the
+third (up to 42 with the cameras' 6-degree pitches). The site sits :data:`SITE_TRACK_OFFSET_M` off the middle orbit's
+ground track (midway between the tracks for an even number of orbits), so
+every pass is rolled.
+
+Per orbit four images see the site (names ``orbit<k>_<kind>``):
+
+* ``nac`` - the NAC-like pushbroom, centred on the site at the pass's
+  reference epoch ``t_o``;
+* ``tc`` - the Kaguya-TC-like pushbroom, pitched forward, a few seconds earlier;
+* ``frame_a``, ``frame_b`` - the Clementine-like frame camera, pitched aft, a
+  few seconds later, 40 % of a frame apart along track (60 % overlap).
+
+Pushbroom line times give square ground pixels at the image centre. The bus
+attitude is nadir pointing (+z to the Moon's centre, +x along the
+ground-track velocity) with the same slow wobble as the single-image mission,
+turned by the pass's roll (constant over the pass). Attitude kernels cover
+only the passes (:data:`PASS_HALF_WIDTH` seconds either side of ``t_o``).
+
+Everything here is numpy; :mod:`.block_writing` writes the kernels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import brentq
+from scipy.spatial.transform import Rotation
+
+from ..errors import InvalidInputError
+from . import textkernels
+from .attitude import NadirAttitude
+from .block_cameras import BLOCK_CAMERAS, BLOCK_FRAME, BLOCK_NAC, BLOCK_TC, BlockCameraSpec
+from .bodies import (MOON_RADIUS_KM, frame_rotation, j2000_to_iau_moon, moon_spin_rate, moon_state_ssb,
+                     sun_state_ssb)
+from .mission import ALTITUDE_KM, FRAME_EXPOSURE_MS, MISSION_START_TDB, tdb_to_et
+from .nav_errors import NavigationErrors, NavigationErrorSpec, draw_navigation_errors
+from .orbit import KeplerOrbit
+
+__all__ = [
+    "BlockImagePlan", "BlockPass", "BlockModel", "build_block_model", "block_geometry", "SITE_LATITUDE_DEG",
+    "SUN_OFFSET_DEG",
+    "SITE_TRACK_OFFSET_M", "PASS_HALF_WIDTH", "BLOCK_ORBITS", "PUSHBROOM_LINES", "FRAME_ADVANCE",
+    "TRUTH_SPK_STEP", "TRUTH_CK_STEP", "NAV_SPK_STEP", "NAV_CK_STEP", "SPK_MARGIN",
+]
+
+#: Default site latitude, degrees (planetocentric).
+SITE_LATITUDE_DEG = 57.0
+#: Angle between the orbit plane's sunlit half and the subsolar meridian, degrees.
+SUN_OFFSET_DEG = 15.0
+#: Distance of the site from the middle orbit's ground track (odd number of orbits), m.
+SITE_TRACK_OFFSET_M = 2000.0
+#: Half-width of each pass (the attitude and navigation kernels' coverage around ``t_o``), s.
+PASS_HALF_WIDTH = 300.0
+#: Default number of orbits.
+BLOCK_ORBITS = 3
+#: Lines of each pushbroom image.
+PUSHBROOM_LINES = 512
+#: Along-track distance between frame_a and frame_b, in frame footprints.
+FRAME_ADVANCE = 0.4
+#: Record spacing of the truth SPK (continuous over the coverage) and CK (per pass), s.
+TRUTH_SPK_STEP = 10.0
+TRUTH_CK_STEP = 0.5
+#: Record spacing of the navigation SPK and CK (per pass), s: they resolve the errors' random part
+#: (periods >= 20 s) to below 1 mm and 1 nrad.
+NAV_SPK_STEP = 1.0
+NAV_CK_STEP = 0.25
+#: Truth SPK coverage beyond the first and last pass, s.
+SPK_MARGIN = 600.0
+
+_KINDS = ("nac", "tc", "frame_a", "frame_b")
+Array = NDArray[np.float64]
+
+
+def _unit(v: Array) -> Array:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _ray_sphere(origin: Array, direction: Array, radius: float) -> Array:
+    """Nearest intersection of rays with a sphere about the origin (NaN where missed), same units."""
+    d = _unit(direction)
+    b = np.sum(origin * d, axis=-1)
+    c = np.sum(origin * origin, axis=-1) - radius * radius
+    disc = b * b - c
+    with np.errstate(invalid="ignore"):
+        s = -b - np.sqrt(disc)
+    s = np.where((disc >= 0.0) & (s > 0.0), s, np.nan)
+    return origin + s[..., None] * d
+
+
+def _lonlat_to_xyz(lon_deg: float, lat_deg: float, radius: float) -> Array:
+    lon, lat = np.radians(lon_deg), np.radians(lat_deg)
+    return radius * np.array([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
+
+
+def _east_north(lon_deg: float, lat_deg: float) -> tuple[Array, Array]:
+    lon, lat = np.radians(lon_deg), np.radians(lat_deg)
+    east = np.array([-np.sin(lon), np.cos(lon), 0.0])
+    north = np.array([-np.sin(lat) * np.cos(lon), -np.sin(lat) * np.sin(lon), np.cos(lat)])
+    return east, north
+
+
+@dataclass(frozen=True)
+class BlockImagePlan:
+    """One image of the block (planned times; the manifest has the label times).
+
+    Parameters
+    ----------
+    name : str
+        ``orbit<k>_<kind>``; the label is ``<name>.lbl``.
+    camera : BlockCameraSpec
+    orbit : int
+        1-based orbit number.
+    kind : str
+        ``'nac'``, ``'tc'``, ``'frame_a'`` or ``'frame_b'``.
+    lines : int
+    center_et : float
+        Planned centre time, ET.
+    line_time : float or None
+        Pushbroom line period, s (whole nanoseconds).
+    exposure : float or None
+        Frame exposure, s.
+    """
+
+    name: str
+    camera: BlockCameraSpec
+    orbit: int
+    kind: str
+    lines: int
+    center_et: float
+    line_time: float | None
+    exposure: float | None
+
+    @property
+    def samples(self) -> int:
+        return self.camera.samples
+
+    @property
+    def duration(self) -> float:
+        """Acquisition time, s."""
+        return self.lines * self.line_time if self.line_time is not None else float(self.exposure)
+
+    @property
+    def planned_start_et(self) -> float:
+        return self.center_et - 0.5 * self.duration
+
+
+@dataclass(frozen=True)
+class BlockPass:
+    """One pass over the site.
+
+    Parameters
+    ----------
+    orbit : int
+        1-based orbit number.
+    epoch : float
+        ``t_o``: the NAC boresight meets the site (height 0), ET.
+    roll_deg : float
+        Bus roll about its +x axis during the pass, degrees.
+    start_et, end_et : float
+        The pass window (``t_o -/+`` :data:`PASS_HALF_WIDTH`).
+    """
+
+    orbit: int
+    epoch: float
+    roll_deg: float
+    start_et: float
+    end_et: float
+
+
+@dataclass(frozen=True)
+class BlockModel:
+    """Truth (and navigation) model of the block, all numpy.
+
+    Parameters
+    ----------
+    seed : int
+    orbits : int
+    site_latitude_deg, site_longitude_deg : float
+        The site, degrees.
+    site_extent_m : float
+        Side of the square around the site that every image footprint fits in, m.
+    start_et, end_et : float
+        Truth SPK coverage, ET.
+    sclk_zero_et : float
+    orbit : KeplerOrbit
+    nadir : NadirAttitude
+        The unrolled bus attitude (never yaw-flipped).
+    passes : tuple of BlockPass
+    mounting_angles_deg : dict
+        Instrument id -> TK angles (about bus x, y, z), degrees.
+    images : tuple of BlockImagePlan
+    navigation : NavigationErrors
+    navigation_spec : NavigationErrorSpec
+    """
+
+    seed: int
+    orbits: int
+    site_latitude_deg: float
+    site_longitude_deg: float
+    site_extent_m: float
+    start_et: float
+    end_et: float
+    sclk_zero_et: float
+    orbit: KeplerOrbit
+    nadir: NadirAttitude
+    passes: tuple[BlockPass, ...]
+    mounting_angles_deg: dict[int, tuple[float, float, float]]
+    images: tuple[BlockImagePlan, ...]
+    navigation: NavigationErrors
+    navigation_spec: NavigationErrorSpec
+    cameras: tuple[BlockCameraSpec, ...] = field(default=BLOCK_CAMERAS)
+
+    # -- truth -------------------------------------------------------------------
+    def state(self, et: ArrayLike) -> Array:
+        """True spacecraft state relative to the Moon, J2000, km and km/s; shape ``et.shape + (6,)``."""
+        return self.orbit.state(et)
+
+    def pass_index(self, et: ArrayLike) -> NDArray[np.intp]:
+        """0-based pass of each epoch; raises outside every pass (no attitude is defined there)."""
+        et = np.asarray(et, dtype=float)
+        w = np.array([[p.start_et, p.end_et] for p in self.passes]).reshape(-1, 2)
+        # 1 s of slack, as the navigation errors have, for derivatives at the window ends
+        inside = (et[..., None] >= w[:, 0] - 1.0) & (et[..., None] <= w[:, 1] + 1.0)
+        if not np.all(inside.any(axis=-1)):
+            bad = et[~inside.any(axis=-1)]
+            raise InvalidInputError(f"ET {bad.ravel()[:3]} is outside every pass of the block "
+                                    f"(windows {w.tolist()}): the bus attitude is defined only there")
+        return np.argmax(inside, axis=-1)
+
+    def roll(self, et: ArrayLike) -> Array:
+        """Bus roll at ``et``, rad."""
+        rolls = np.radians([p.roll_deg for p in self.passes])
+        return rolls[self.pass_index(et)]
+
+    def bus_matrix(self, et: ArrayLike) -> Array:
+        """True J2000 -> bus matrices (``pxform('J2000', 'SIM_SC_BUS', et)`` of the truth CK)."""
+        et = np.asarray(et, dtype=float)
+        return frame_rotation(self.roll(et), 1) @ self.nadir.matrix(et)
+
+    def bus_angular_velocity(self, et: ArrayLike) -> Array:
+        """True bus angular velocity relative to J2000, J2000 components, rad/s.
+
+        The roll is constant over a pass, so it leaves the angular velocity of the nadir attitude unchanged.
+        """
+        self.pass_index(et)
+        return self.nadir.angular_velocity(np.asarray(et, dtype=float))
+
+    def mounting(self, naif_id: int) -> Array:
+        """Bus -> instrument matrix of a camera (its TK frame; SPICE's ANGLES with AXES (1, 2, 3))."""
+        if naif_id not in self.mounting_angles_deg:
+            raise InvalidInputError(f"no instrument {naif_id} in the block; have {sorted(self.mounting_angles_deg)}")
+        a = np.radians(self.mounting_angles_deg[naif_id])
+        return frame_rotation(-a[2], 3) @ frame_rotation(-a[1], 2) @ frame_rotation(-a[0], 1)
+
+    def camera(self, naif_id: int) -> BlockCameraSpec:
+        for c in self.cameras:
+            if c.naif_id == naif_id:
+                return c
+        raise InvalidInputError(f"no instrument {naif_id} in the block")
+
+    def position_body_fixed(self, et: ArrayLike) -> Array:
+        """True spacecraft position, body-fixed (IAU_MOON), metres."""
+        et = np.asarray(et, dtype=float)
+        return np.einsum("...ij,...j->...i", j2000_to_iau_moon(et), self.state(et)[..., :3]) * 1000.0
+
+    def sensor_to_body(self, naif_id: int, et: ArrayLike) -> Array:
+        """True rotation sensor frame -> body-fixed frame (what an ISD's EO holds)."""
+        et = np.asarray(et, dtype=float)
+        inst = self.mounting(naif_id) @ self.bus_matrix(et)
+        return j2000_to_iau_moon(et) @ np.swapaxes(inst, -1, -2)
+
+    # -- navigation ----------------------------------------------------------------
+    def navigation_state(self, et: ArrayLike) -> Array:
+        """Navigation state (truth + error), J2000, km and km/s."""
+        et = np.asarray(et, dtype=float)
+        b = j2000_to_iau_moon(et)
+        h = 0.5  # s; B turns at 2.7e-6 rad/s, so the central difference is exact to ~1e-17 relative
+        db = (j2000_to_iau_moon(et + h) - j2000_to_iau_moon(et - h)) / (2.0 * h)
+        e, de = self.navigation.position(et), self.navigation.position_rate(et)
+        bt, dbt = np.swapaxes(b, -1, -2), np.swapaxes(db, -1, -2)
+        dp = np.einsum("...ij,...j->...i", bt, e) / 1000.0
+        dv = (np.einsum("...ij,...j->...i", bt, de) + np.einsum("...ij,...j->...i", dbt, e)) / 1000.0
+        return self.state(et) + np.concatenate([dp, dv], axis=-1)
+
+    def navigation_bus_matrix(self, et: ArrayLike) -> Array:
+        """Navigation J2000 -> bus matrices, ``Rv(th)^T C_true``."""
+        et = np.asarray(et, dtype=float)
+        th = self.navigation.attitude(et)
+        rv = Rotation.from_rotvec(th.reshape(-1, 3)).as_matrix().reshape(th.shape + (3,))
+        return np.swapaxes(rv, -1, -2) @ self.bus_matrix(et)
+
+    def navigation_bus_angular_velocity(self, et: ArrayLike) -> Array:
+        """Navigation bus angular velocity relative to J2000, J2000 components, rad/s (central differences)."""
+        et = np.asarray(et, dtype=float)
+        h = 0.05
+        c = self.navigation_bus_matrix(et)
+        dc = (self.navigation_bus_matrix(et + h) - self.navigation_bus_matrix(et - h)) / (2.0 * h)
+        s = -np.swapaxes(c, -1, -2) @ dc
+        return 0.5 * np.stack([s[..., 2, 1] - s[..., 1, 2], s[..., 0, 2] - s[..., 2, 0],
+                               s[..., 1, 0] - s[..., 0, 1]], axis=-1)
+
+    def attitude_error_body_fixed(self, et: ArrayLike) -> Array:
+        """``w = B C_true^T th``: the navigation attitude error as a body-fixed rotation vector, rad."""
+        et = np.asarray(et, dtype=float)
+        m = j2000_to_iau_moon(et) @ np.swapaxes(self.bus_matrix(et), -1, -2)
+        return np.einsum("...ij,...j->...i", m, self.navigation.attitude(et))
+
+    def orbit_frame(self, et: ArrayLike) -> Array:
+        """Rows: along-track, cross-track, radial unit vectors (body-fixed) of the true orbit at ``et``.
+
+        Along-track is the horizontal part of the velocity relative to the
+        rotating Moon, radial points away from the Moon's centre and
+        ``cross = radial x along``.
+        """
+        et = np.asarray(et, dtype=float)
+        b = j2000_to_iau_moon(et)
+        st = self.state(et)
+        r = np.einsum("...ij,...j->...i", b, st[..., :3])
+        pole = b[..., 2, :]
+        v_j = st[..., 3:] - moon_spin_rate() * np.cross(pole, st[..., :3])
+        v = np.einsum("...ij,...j->...i", b, v_j)
+        up = _unit(r)
+        along = _unit(v - np.sum(v * up, axis=-1, keepdims=True) * up)
+        cross = np.cross(up, along)
+        return np.stack([along, cross, up], axis=-2)
+
+    # -- images ------------------------------------------------------------------
+    def image(self, name: str) -> BlockImagePlan:
+        for im in self.images:
+            if im.name == name:
+                return im
+        raise InvalidInputError(f"no image {name!r} in the block; have {[i.name for i in self.images]}")
+
+    @property
+    def image_names(self) -> tuple[str, ...]:
+        return tuple(im.name for im in self.images)
+
+    def tick_aligned(self, et: float) -> float:
+        """The clock tick (1/65536 s) nearest to ``et``, as ET."""
+        ticks = round((et - self.sclk_zero_et) * textkernels.SCLK_MODULI[1])
+        return self.sclk_zero_et + ticks / textkernels.SCLK_MODULI[1]
+
+    def site_xyz(self, height: float = 0.0) -> Array:
+        """The site, body-fixed metres, at ``height`` metres above the reference sphere."""
+        return _lonlat_to_xyz(self.site_longitude_deg, self.site_latitude_deg, MOON_RADIUS_KM * 1000.0 + height)
+
+    def boresight_ground(self, naif_id: int, et: ArrayLike, look: ArrayLike = (0.0, 0.0, 1.0)) -> Array:
+        """Where a sensor-frame look vector meets the reference sphere, body-fixed m (truth, no distortion)."""
+        et = np.asarray(et, dtype=float)
+        d = np.einsum("...ij,j->...i", self.sensor_to_body(naif_id, et), np.asarray(look, dtype=float))
+        return _ray_sphere(self.position_body_fixed(et), d, MOON_RADIUS_KM * 1000.0)
+
+    def sun_direction_body_fixed(self, et: float) -> Array:
+        """Unit vector Moon -> Sun (geometric), body-fixed."""
+        s = sun_state_ssb(et)[:3] - moon_state_ssb(et)[:3]
+        return _unit(j2000_to_iau_moon(et) @ s)
+
+
+# -- construction ----------------------------------------------------------------
+
+def _latitude_crossing(orbit: KeplerOrbit, lat_deg: float, revolution: int, start_arg_lat: float) -> float:
+    """Time of the northbound crossing of a latitude in a revolution (1 = first after the epoch)."""
+    u = np.radians(lat_deg) + 2.0 * np.pi * (revolution - 1)
+    guess = orbit.epoch + (u - start_arg_lat) / orbit.mean_motion
+
+    def f(t: float) -> float:
+        p = j2000_to_iau_moon(t) @ orbit.state(np.asarray(t))[:3]
+        return float(np.degrees(np.arcsin(p[2] / np.linalg.norm(p))) - lat_deg)
+
+    return float(brentq(f, guess - 150.0, guess + 150.0, xtol=1e-7, rtol=1e-15))
+
+
+def _check_args(seed: Any, orbits: Any, latitude: Any) -> None:
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise InvalidInputError(f"seed must be a non-negative integer, got {seed!r}")
+    if isinstance(orbits, bool) or not isinstance(orbits, (int, np.integer)) or not 2 <= orbits <= 4:
+        raise InvalidInputError(f"orbits must be an integer from 2 to 4, got {orbits!r}")
+    if isinstance(latitude, bool) or not isinstance(latitude, (int, float, np.floating)) \
+            or not np.isfinite(latitude) or not 10.0 <= abs(latitude) <= 75.0:
+        raise InvalidInputError(f"site latitude must be a number with 10 <= |latitude| <= 75 degrees "
+                                f"(consecutive tracks must stay within ~30 km), got {latitude!r}")
+
+
+def build_block_model(seed: int = 0, *, orbits: int = BLOCK_ORBITS, site_latitude_deg: float = SITE_LATITUDE_DEG,
+                      navigation: NavigationErrorSpec | None = None) -> BlockModel:
+    """The truth and navigation model of the imaging block (no files, no SPICE).
+
+    Parameters
+    ----------
+    seed : int
+        Seed of every random choice (orbit perturbations, wobble, camera
+        misalignments, navigation errors).
+    orbits : int
+        Consecutive orbits over the site, 2 to 4.
+    site_latitude_deg : float
+        Latitude of the site, degrees (``10 <= |lat| <= 75``).
+    navigation : NavigationErrorSpec, optional
+        Magnitudes of the navigation errors (defaults: see the class).
+
+    Returns
+    -------
+    BlockModel
+    """
+    _check_args(seed, orbits, site_latitude_deg)
+    spec = navigation if navigation is not None else NavigationErrorSpec()
+    if not isinstance(spec, NavigationErrorSpec):
+        raise InvalidInputError(f"navigation must be a NavigationErrorSpec, got {type(spec).__name__}")
+    orbits, lat0 = int(orbits), float(site_latitude_deg)
+    rng = np.random.default_rng(int(seed))
+    ecc = float(rng.uniform(0.001, 0.002))
+    periapsis = float(rng.uniform(0.0, 2.0 * np.pi))
+    periapsis_rate = float(np.radians(rng.uniform(-3.0, 3.0)) / 86400.0)
+    node_jitter = float(np.radians(rng.uniform(-2.0, 2.0)))
+    wobble_amp = tuple(float(np.radians(a)) for a in rng.uniform(0.008, 0.012, 3))
+    wobble_period = tuple(float(p) for p in rng.uniform(1500.0, 2400.0, 3))
+    wobble_phase = tuple(float(p) for p in rng.uniform(0.0, 2.0 * np.pi, 3))
+    misalign = rng.choice([-1.0, 1.0], (3, 3)) * rng.uniform(0.01, 0.05, (3, 3))
+    mounting = {c.naif_id: tuple(float(round(n + m, 6)) for n, m in zip(c.nominal_angles_deg, misalign[i]))
+                for i, c in enumerate(BLOCK_CAMERAS)}
+
+    start = tdb_to_et(MISSION_START_TDB)
+    # first crossing of the site latitude 60 degrees of orbit (~19 min) after the start
+    start_u = np.radians(lat0 - 60.0)
+    probe = KeplerOrbit(start, MOON_RADIUS_KM + ALTITUDE_KM, 0.0, np.pi / 2, 0.0, 0.0, 0.0, 0.0)
+    sun_dir = probe.moon_equator_to_j2000.T @ (sun_state_ssb(start)[:3] - moon_state_ssb(start)[:3])
+    node = float(np.mod(np.arctan2(sun_dir[1], sun_dir[0]) + np.radians(SUN_OFFSET_DEG) + node_jitter, 2 * np.pi))
+    orbit = KeplerOrbit(epoch=start, semi_major_axis=MOON_RADIUS_KM + ALTITUDE_KM, eccentricity=ecc,
+                        inclination=np.pi / 2, node=node, periapsis=periapsis, periapsis_rate=periapsis_rate,
+                        mean_anomaly=KeplerOrbit.mean_anomaly_for(start_u - periapsis, ecc))
+    never = start - 1.0  # an empty yaw-flip interval
+    nadir = NadirAttitude(orbit, wobble_amp, wobble_period, wobble_phase, never, never)
+
+    # the site: between the tracks (or beside the middle one) at the site latitude
+    crossings = [_latitude_crossing(orbit, lat0, k + 1, start_u) for k in range(orbits)]
+    lons = []
+    for t in crossings:
+        p = j2000_to_iau_moon(t) @ orbit.state(np.asarray(t))[:3]
+        lons.append(float(np.degrees(np.arctan2(p[1], p[0]))))
+    lons_u = np.degrees(np.unwrap(np.radians(lons)))
+    offset = SITE_TRACK_OFFSET_M if orbits % 2 else 0.0
+    lon0 = float(np.mean(lons_u) + np.degrees(offset / (MOON_RADIUS_KM * 1000.0 * np.cos(np.radians(lat0)))))
+    lon0 = float(np.mod(lon0 + 180.0, 360.0) - 180.0)
+
+    # rolls and reference epochs: the NAC boresight meets the site
+    stub = BlockModel(seed=int(seed), orbits=orbits, site_latitude_deg=lat0, site_longitude_deg=lon0,
+                      site_extent_m=0.0, start_et=start, end_et=start,
+                      sclk_zero_et=tdb_to_et(textkernels.SCLK_ZERO_TDB),
+                      orbit=orbit, nadir=nadir, passes=(), mounting_angles_deg=mounting, images=(),
+                      navigation=None, navigation_spec=spec)  # type: ignore[arg-type]
+    site = stub.site_xyz()
+    east, north = _east_north(lon0, lat0)
+    passes = []
+    for k, t_cross in enumerate(crossings):
+        t_o, roll = _point_at_site(stub, t_cross, site, east, north)
+        passes.append(BlockPass(k + 1, t_o, float(np.degrees(roll)), t_o - PASS_HALF_WIDTH, t_o + PASS_HALF_WIDTH))
+    windows = [[p.start_et, p.end_et] for p in passes]
+    nav = draw_navigation_errors(rng, [p.epoch for p in passes], windows, spec)
+    model = _replace(stub, passes=tuple(passes), navigation=nav,
+                     start_et=passes[0].start_et - SPK_MARGIN, end_et=passes[-1].end_et + SPK_MARGIN)
+    model = _replace(model, images=tuple(_plan_images(model, site)))
+    return _replace(model, site_extent_m=_site_extent(model, east, north))
+
+
+def _replace(model: BlockModel, **changes: Any) -> BlockModel:
+    return dataclasses.replace(model, **changes)
+
+
+def _with_roll(model: BlockModel, roll: float, t: float) -> BlockModel:
+    """A one-pass stub model with ``roll`` (rad) around ``t``, for the pointing solution."""
+    return _replace(model, passes=(BlockPass(1, t, float(np.degrees(roll)), t - 1e3, t + 1e3),))
+
+
+def _point_at_site(stub: BlockModel, t_cross: float, site: Array, east: Array, north: Array) -> tuple[float, float]:
+    """``(t_o, roll)`` putting the NAC boresight on the site at height 0 (Newton, numerical Jacobian)."""
+
+    def miss(x: Array) -> Array:
+        t = t_cross + x[0]
+        g = _with_roll(stub, x[1], t).boresight_ground(BLOCK_NAC.naif_id, t)
+        d = g - site
+        return np.array([d @ east, d @ north])  # m
+
+    x = np.zeros(2)
+    steps = np.array([1e-3, 1e-6])  # s, rad
+    for _ in range(20):
+        r = miss(x)
+        # 0.1 mm: an ET near 8e8 s is resolved to 1.2e-7 s, i.e. 0.2 mm along track
+        if np.max(np.abs(r)) < 1e-4:
+            return float(t_cross + x[0]), float(x[1])
+        jac = np.column_stack([(miss(x + d) - miss(x - d)) / (2.0 * d.sum()) for d in np.diag(steps)])
+        x = x - np.linalg.solve(jac, r)
+        if not np.all(np.isfinite(x)) or abs(x[1]) > np.radians(45.0):
+            break
+    raise InvalidInputError(f"cannot point the NAC at the block site from the orbit crossing at ET {t_cross:.3f}")
+
+
+def _closest_time(model: BlockModel, naif_id: int, t_guess: float, site: Array, along: Array) -> float:
+    """Time at which a camera's boresight ground point passes the site along track."""
+
+    def f(t: float) -> float:
+        return float((model.boresight_ground(naif_id, t) - site) @ along)
+
+    return float(brentq(f, t_guess - 30.0, t_guess + 30.0, xtol=1e-9, rtol=1e-15))
+
+
+def _pushbroom_line_time(model: BlockModel, cam: BlockCameraSpec, t: float) -> float:
+    """Line period (s, whole ns) giving square ground pixels at the image centre at ``t``."""
+    half = 0.5 * cam.pixel_pitch_mm
+    g1 = model.boresight_ground(cam.naif_id, t, (0.0, -half, cam.focal_length_mm))
+    g2 = model.boresight_ground(cam.naif_id, t, (0.0, half, cam.focal_length_mm))
+    h = 0.05
+    v = (model.boresight_ground(cam.naif_id, t + h) - model.boresight_ground(cam.naif_id, t - h)) / (2 * h)
+    return round(float(np.linalg.norm(g2 - g1) / np.linalg.norm(v)), 9)
+
+
+def _plan_images(model: BlockModel, site: Array) -> list[BlockImagePlan]:
+    out = []
+    for p in model.passes:
+        along = model.orbit_frame(p.epoch)[0]
+        lt = _pushbroom_line_time(model, BLOCK_NAC, p.epoch)
+        out.append(BlockImagePlan(f"orbit{p.orbit}_nac", BLOCK_NAC, p.orbit, "nac", PUSHBROOM_LINES, p.epoch, lt, None))
+        t_tc = _closest_time(model, BLOCK_TC.naif_id, p.epoch, site, along)
+        lt = _pushbroom_line_time(model, BLOCK_TC, t_tc)
+        out.append(BlockImagePlan(f"orbit{p.orbit}_tc", BLOCK_TC, p.orbit, "tc", PUSHBROOM_LINES, t_tc, lt, None))
+        t_fr = _closest_time(model, BLOCK_FRAME.naif_id, p.epoch, site, along)
+        h = 0.05
+        speed = np.linalg.norm(model.boresight_ground(BLOCK_FRAME.naif_id, t_fr + h)
+                               - model.boresight_ground(BLOCK_FRAME.naif_id, t_fr - h)) / (2 * h)
+        # along-track footprint: the frame's samples run along track
+        c = BLOCK_FRAME
+        a = model.boresight_ground(c.naif_id, t_fr, (-0.5 * c.samples * c.pixel_pitch_mm, 0.0, c.focal_length_mm))
+        b = model.boresight_ground(c.naif_id, t_fr, (0.5 * c.samples * c.pixel_pitch_mm, 0.0, c.focal_length_mm))
+        step = round(FRAME_ADVANCE * float(np.linalg.norm(b - a)) / float(speed), 3)
+        for kind, t in (("frame_a", t_fr - step / 2), ("frame_b", t_fr + step / 2)):
+            out.append(BlockImagePlan(f"orbit{p.orbit}_{kind}", BLOCK_FRAME, p.orbit, kind, BLOCK_FRAME.lines, t,
+                                      None, FRAME_EXPOSURE_MS / 1000.0))
+    return out
+
+
+def _site_extent(model: BlockModel, east: Array, north: Array) -> float:
+    """Side (m, rounded up to 100 m) of a square about the site holding every image footprint plus 300 m."""
+    site = model.site_xyz()
+    reach = 0.0
+    for im in model.images:
+        corners = im.camera.fov_corners() * im.camera.focal_length_mm
+        if im.line_time is not None:
+            times = np.array([im.planned_start_et, im.planned_start_et, im.planned_start_et + im.duration,
+                              im.planned_start_et + im.duration])
+        else:
+            times = np.full(4, im.center_et)
+        for t, look in zip(times, corners):
+            d = model.boresight_ground(im.camera.naif_id, t, look) - site
+            reach = max(reach, abs(float(d @ east)), abs(float(d @ north)))
+    # 300 m: terrain relief moves footprints (tens of metres) and the DTM needs a border
+    return float(100.0 * np.ceil((2.0 * reach + 600.0) / 100.0))
+
+
+def block_geometry(model: BlockModel) -> dict[str, Any]:
+    """Per-image viewing geometry at the site and the convergence angle of every image pair (degrees)."""
+    site = model.site_xyz()
+    up = _unit(site)
+    views, out = {}, {}
+    for im in model.images:
+        pos = model.position_body_fixed(im.center_et)
+        view = _unit(pos - site)
+        views[im.name] = view
+        sun = model.sun_direction_body_fixed(im.center_et)
+        cam = im.camera
+        slant = float(np.linalg.norm(pos - site))
+        out[im.name] = {
+            "emission_deg": float(np.degrees(np.arccos(view @ up))),
+            "incidence_deg": float(np.degrees(np.arccos(sun @ up))),
+            "slant_range_m": slant,
+            "gsd_m": slant * cam.ifov,  # nominal: slant range times IFOV
+            "roll_deg": model.passes[im.orbit - 1].roll_deg,
+        }
+    names = list(views)
+    conv = {f"{a}|{b}": float(np.degrees(np.arccos(np.clip(views[a] @ views[b], -1.0, 1.0))))
+            for i, a in enumerate(names) for b in names[i + 1:]}
+    return {"images": out, "convergence_deg": conv}
