@@ -2,8 +2,9 @@
 
 ``lunarmap isd LABEL --kernels META_KERNEL [-o FILE]``
     write the CSM image support data (ALE ISD layout) of one image.
-``lunarmap demo [--output DIR]``
-    write the synthetic mission and print ground points of its images.
+``lunarmap demo [--output DIR] [--seed N] [--quick]``
+    the whole chain on a synthetic mission: kernels, rendered images, tie points, adjustment with
+    navigation observations, adjusted kernels reloaded, accuracy against truth.
 """
 
 from __future__ import annotations
@@ -32,9 +33,20 @@ def _cmd_isd(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
+    import logging
+
     from .demo import run_demo
 
-    run_demo(args.output)
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("lunarmap: %(message)s"))
+    log = logging.getLogger("lunarmap")
+    log.addHandler(handler)
+    log.setLevel(logging.INFO)
+    try:
+        report = run_demo(args.output, seed=args.seed, quick=args.quick)
+    finally:
+        log.removeHandler(handler)
+    print(report.text())
     return 0
 
 
@@ -46,8 +58,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--kernels", "-k", required=True, help="meta-kernel (.tm)")
     p.add_argument("--output", "-o", help="output JSON file (default: standard output)")
     p.set_defaults(func=_cmd_isd)
-    d = sub.add_parser("demo", help="synthetic mission: write kernels and images, print ground points")
-    d.add_argument("--output", "-o", default="demo_output", help="folder for the synthetic mission")
+    d = sub.add_parser("demo", help="the whole chain on a synthetic mission with known truth")
+    d.add_argument("--output", "-o", default="demo_output", help="folder for everything the demo writes")
+    d.add_argument("--seed", type=int, default=0, help="seed of the mission, scene and measurements")
+    d.add_argument("--quick", action="store_true", help="fewer interest and check points (same chain, faster)")
     d.set_defaults(func=_cmd_demo)
     return parser
 

@@ -36,17 +36,29 @@ def test_isd_command_reports_errors_and_writes_nothing(sim_mission, tmp_path, ca
     assert not out.exists()
 
 
-def test_demo_prints_ground_points(tmp_path, capsys):
-    assert main(["demo", "--output", str(tmp_path / "demo")]) == 0
+def test_demo_runs_the_whole_chain(tmp_path, capsys):
+    """``lunarmap demo --quick``: rendered images, tie points from the matcher, adjustment on the rigorous
+    cameras with navigation observations, adjusted kernels reloaded; accuracy against the simulation's truth."""
+    out = tmp_path / "demo"
+    assert main(["demo", "--output", str(out), "--quick"]) == 0
     text = capsys.readouterr().out
-    assert "sim_nac_85n" in text and "sim_frame_a" in text and "nan" not in text.lower()
-    assert (tmp_path / "demo" / "sim_nac_equator.isd.json").is_file()
-    # every image got an RPC that reads back; the adjustment line reports sigma0 near 1
-    from lunarmap.rpc import read_rpc_txt
+    assert "nan" not in text.lower()
+    before = np.array(text.split("before (navigation):")[1].split("\n")[0].split(), float)
+    after = np.array(text.split("after (adjusted):")[1].split("(")[0].split(), float)
+    sigma = np.array(text.split("posterior sigma:")[1].split("(")[0].split(), float)
+    z = float(text.split("errors / sigma: RMS ")[1].split(";")[0])
+    sigma0 = float(text.split("sigma0 ")[1].split(" ")[0])
+    assert np.all(before > 5.0)                     # metres: the navigation errors of tens of metres
+    assert np.all(after * 10 < before)              # at least 10x better in every component
+    assert np.all(after < 3 * sigma) and 0.7 < z < 1.3
+    assert abs(sigma0 - 1.0) < 0.1
+    mm, px = (float(v) for v in text.split("agree with the adjusted ones to ")[1].split(" px")[0].split(" mm / "))
+    assert mm <= 1.0 and px <= 1e-4
+    for f in ("adjusted.tm", "adjusted.bsp", "adjusted.bc", "tiepoints.nc", "control_network.nc",
+              "orbit1_nac_RPC.TXT", "orbit2_frame_a.adjusted.json"):
+        assert (out / f).is_file(), f
+    from lunarmap.adjust import read_network
+    from lunarmap.matching import read_tiepoints
 
-    for name in ("sim_nac_equator", "sim_frame_a"):
-        assert read_rpc_txt(tmp_path / "demo" / f"{name}_RPC.TXT").to_dataset() is not None
-    rms = [float(line.split("RMS ")[1].split(" px")[0]) for line in text.splitlines() if "cubic RFM" in line]
-    assert len(rms) == 5 and max(rms) <= 0.01
-    sigma0 = float(text.split("sigma0 ")[1].split(",")[0])
-    assert abs(sigma0 - 1.0) < 0.05
+    assert read_tiepoints(out / "tiepoints.nc").sizes["observation"] > 1000
+    assert set(read_network(out / "control_network.nc").point_type) == {"tie", "control", "check"}

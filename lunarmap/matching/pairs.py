@@ -48,6 +48,14 @@ class MatchParams:
         LSM may move a match at most this far from the NCC position.
     saturation : float, optional
         Grey level at which pixels count as saturated (invalid).
+    bias_sample : int
+        When ``search`` exceeds ``2 * local_search``, the prediction's common offset (a navigation error
+        shifts every conjugate of a pair alike) is first measured on this many points spread over the
+        image with the full ``search``; every point is then matched around its shifted prediction with
+        ``local_search``. 0 disables it.
+    local_search : float
+        Search radius after the offset is removed, image-1 pixels (terrain relief parallax and the
+        offset's variation over the image must fit in it).
     """
 
     half: int = 7
@@ -58,6 +66,8 @@ class MatchParams:
     max_shift: float = 3.0
     lsm_iterations: int = 20
     saturation: float | None = None
+    bias_sample: int = 64
+    local_search: float = 16.0
 
 
 @dataclass
@@ -155,8 +165,15 @@ def match_points(image1: NDArray, image2: NDArray, sensor1: SensorModel, sensor2
         return res
     pyr1, pyr2 = pyramids or (build_pyramid(image1, params.pyramid_levels),
                               build_pyramid(image2, params.pyramid_levels))
-    ncc = ncc_match(pyr1, pyr2, l1[idx], s1[idx], pred.line[idx], pred.sample[idx], pred.affine[idx],
-                    half=params.half, search=params.search)
+    search = params.search
+    pl, ps = pred.line[idx], pred.sample[idx]
+    if params.bias_sample > 0 and params.search > 2.0 * params.local_search and idx.size > params.bias_sample:
+        offset = _prediction_offset(pyr1, pyr2, l1[idx], s1[idx], pl, ps, pred.affine[idx], params)
+        if offset is not None:
+            pl, ps = pl + offset[0], ps + offset[1]
+            search = params.local_search
+            res.meta["prediction_offset_px"] = (float(offset[0]), float(offset[1]))
+    ncc = ncc_match(pyr1, pyr2, l1[idx], s1[idx], pl, ps, pred.affine[idx], half=params.half, search=search)
     failed = ~np.isfinite(ncc.correlation)
     low = ~failed & (ncc.correlation < params.min_ncc)
     status[idx[failed]] = STATUS["ncc_failed"]
@@ -179,3 +196,21 @@ def match_points(image1: NDArray, image2: NDArray, sensor1: SensorModel, sensor2
     res.sigma_sample[k] = lsm.sigma_sample[good]
     res.correlation[k] = lsm.correlation[good]
     return res
+
+
+def _prediction_offset(pyr1: list[Array], pyr2: list[Array], l1: Array, s1: Array, pl: Array, ps: Array,
+                       affine: Array, params: MatchParams) -> tuple[float, float] | None:
+    """Median offset (image-2 pixels) of NCC matches from their predictions, on a sample spread over image 1.
+
+    ``None`` when fewer than 8 sample points match with the full search at ``min_ncc``.
+    """
+    order = np.lexsort((s1, l1))              # spread the sample over the image, deterministically
+    pick = order[np.linspace(0, order.size - 1, params.bias_sample).round().astype(np.intp)]
+    ncc = ncc_match(pyr1, pyr2, l1[pick], s1[pick], pl[pick], ps[pick], affine[pick], half=params.half,
+                    search=params.search)
+    good = np.isfinite(ncc.correlation) & (ncc.correlation >= params.min_ncc)
+    if np.count_nonzero(good) < 8:
+        return None
+    dl = ncc.line[good] - pl[pick][good]
+    ds = ncc.sample[good] - ps[pick][good]
+    return float(np.median(dl)), float(np.median(ds))
