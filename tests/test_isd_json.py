@@ -119,18 +119,22 @@ def test_sim_frame_round_trip_within_1e_6_px(sim_isds):
         assert px <= 1e-6 and ground_m < 1e-6
 
 
-def test_sim_body_rotation_vs_spice(sim_isds):
-    """The body rotation rebuilt from 2 epochs 16 s apart, against SPICE's sxform at 5223 epochs.
+def test_sim_body_rotation_vs_spice(sim_isds, sim_mission):
+    """The body rotation of the ISD (sampled at 2 epochs 16 s apart, interpolated like a reader of the file
+    does), against SPICE's sxform at all 5223 epochs.
 
-    The difference is SPICE's rounding noise (about 1e-13 rad rms: the IAU prime
-    meridian is evaluated in degrees near 4.6e4), not an interpolation error: it
-    is mostly what a cubic in time cannot fit, and the smooth part is no larger
-    than that noise (the file's two epochs are themselves noisy SPICE samples).
+    The difference is SPICE's rounding noise (about 1e-13 rad rms: the IAU prime meridian is evaluated in
+    degrees near 4.6e4), not an interpolation error: it is mostly what a cubic in time cannot fit, and the
+    smooth part is no larger than that noise (the two sampled epochs are themselves noisy SPICE values).
     """
+    from lunarmap.spice import KernelSet, kernels
+    from lunarmap.spice import queries as q
+
     isd, path = sim_isds["sim_nac_equator"]
-    back = ImageSupport.read_json(path)
-    assert np.array_equal(back.times, isd.times) and isd.times[-1] - isd.times[0] > 15.0
-    r = np.swapaxes(back.body_state_rotations[:, :3, :3], 1, 2) @ isd.body_state_rotations[:, :3, :3]
+    assert isd.times[-1] - isd.times[0] > 15.0
+    with kernels(KernelSet.from_metakernel(sim_mission)):
+        xf = q.state_rotations("J2000", isd.body_frame, isd.times)
+    r = np.swapaxes(isd.body_state_rotations[:, :3, :3], 1, 2) @ xf[:, :3, :3]
     small = np.stack([r[:, 2, 1], r[:, 0, 2], r[:, 1, 0]], axis=1)  # small-angle rotation vector, rad
     t = isd.times - isd.times[0]
     smooth = np.stack([np.polyval(np.polyfit(t, small[:, k], 3), t) for k in range(3)], axis=1)
@@ -138,10 +142,11 @@ def test_sim_body_rotation_vs_spice(sim_isds):
     assert np.abs(small).max() < 1.5e-12
     assert np.abs(smooth).max() <= 2.0 * np.abs(noise).max()
     assert noise.std() >= 0.5 * small.std()
-    # d(R)/dt = -R [w]x, |w| = 2.7e-6 rad/s: the rates are interpolated linearly between the exact end
-    # rates (the interpolant's own derivative would carry the end noise / 16 s: 7e-15 rad/s)
-    dr = back.body_state_rotations[:, 3:, :3] - isd.body_state_rotations[:, 3:, :3]
+    # the state transforms' rate part: d(R)/dt = -R [w]x with |w| = 2.7e-6 rad/s, here within 1e-17 /s
+    dr = isd.body_state_rotations[:, 3:, :3] - xf[:, 3:, :3]
     assert np.abs(dr).max() < 1e-17
+    back = ImageSupport.read_json(path)
+    assert np.array_equal(back.body_state_rotations, isd.body_state_rotations)
     print(f"sim body rotation vs SPICE: max {np.abs(small).max():.1e} rad (noise rms {noise.std():.1e}, smooth "
           f"part {np.abs(smooth).max():.1e}), dR/dt {np.abs(dr).max():.1e} /s")
 

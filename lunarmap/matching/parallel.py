@@ -30,6 +30,7 @@ from dask.base import is_dask_collection, tokenize
 from dask.delayed import Delayed
 from numpy.typing import NDArray
 
+from ..camera.sensor import SensorModel
 from ..errors import InvalidInputError
 from ..rpc.parallel import WORKER_ENVIRON as _RPC_WORKER_ENVIRON
 from .interest import InterestPoints
@@ -63,7 +64,7 @@ def _assemble(index_pairs: Sequence[tuple[int, int]], matched: Sequence[PairMatc
     return assemble_tiepoints([(i, j, m) for (i, j), m in zip(index_pairs, matched)], names, track_tol)
 
 
-def tiepoint_graph(images: Mapping[str, Any], sensors: Mapping[str, Any],
+def tiepoint_graph(images: Mapping[str, Any], sensors: Mapping[str, SensorModel],
                    pairs: Sequence[tuple[str, str]] | None = None, height: Any = 0.0,
                    params: TiePointParams | None = None, pixels: Mapping[str, Any] | None = None) -> Delayed:
     """Delayed tie-point table of a set of images; see :func:`~lunarmap.matching.find_tiepoints`.
@@ -79,6 +80,10 @@ def tiepoint_graph(images: Mapping[str, Any], sensors: Mapping[str, Any],
     missing = [n for n in names if n not in sensors]
     if missing:
         raise InvalidInputError(f"no sensor model for image(s) {missing}")
+    wrong = [n for n in names if not isinstance(sensors[n], SensorModel)]
+    if wrong:
+        raise InvalidInputError(f"sensor(s) of {wrong} are not lunarmap SensorModels "
+                                f"({type(sensors[wrong[0]]).__name__})")
     if pairs is None:
         pairs = [(a, b) for k, a in enumerate(names) for b in names[k + 1:]]
     for a, b in pairs:
@@ -124,7 +129,7 @@ def tiepoint_graph(images: Mapping[str, Any], sensors: Mapping[str, Any],
                                               params.track_tol)
 
 
-def find_tiepoints(images: Mapping[str, xr.DataArray | NDArray], sensors: Mapping[str, Any],
+def find_tiepoints(images: Mapping[str, xr.DataArray | NDArray], sensors: Mapping[str, SensorModel],
                    pairs: Sequence[tuple[str, str]] | None = None, height: Any = 0.0,
                    params: TiePointParams | None = None, scheduler: Any = "sync") -> xr.Dataset:
     """Tie points of a set of images (one dask task per tile and per image pair).
