@@ -67,6 +67,7 @@ class DemoReport:
     def text(self) -> str:
         """A printable summary."""
         b, a, s = self.check_rms_before, self.check_rms_after, self.check_sigma_after
+        b3, a3, s3 = (float(np.sqrt(np.sum(v ** 2))) for v in (b, a, s))
         lines = [
             f"lunarmap demo in {self.folder}",
             f"  block: {len(self.images)} images ({', '.join(self.images[:4])}, ...) on 3 orbits, NAVIGATION "
@@ -74,11 +75,10 @@ class DemoReport:
             f"  tie points from the matcher: {self.n_tie_points} points, {self.n_observations} image observations",
             f"  adjustment on the rigorous cameras: sigma0 {self.sigma0:.3f} (tie-point sigma x "
             f"{self.tie_sigma_scale:.2f} from variance-component estimation)",
-            "  check points vs truth, RMS east / north / up (m):",
-            f"    before (navigation): {b[0]:8.3f} {b[1]:8.3f} {b[2]:8.3f}",
-            f"    after (adjusted):    {a[0]:8.3f} {a[1]:8.3f} {a[2]:8.3f}   "
-            f"({np.max(b / a):.0f}x to {np.min(b / a):.0f}x smaller)",
-            f"    posterior sigma:     {s[0]:8.3f} {s[1]:8.3f} {s[2]:8.3f}   "
+            "  check points vs truth, RMS east / north / up / 3-D (m):",
+            f"    before (navigation): {b[0]:8.3f} {b[1]:8.3f} {b[2]:8.3f} {b3:8.3f}",
+            f"    after (adjusted):    {a[0]:8.3f} {a[1]:8.3f} {a[2]:8.3f} {a3:8.3f}   ({b3 / a3:.0f}x smaller)",
+            f"    posterior sigma:     {s[0]:8.3f} {s[1]:8.3f} {s[2]:8.3f} {s3:8.3f}   "
             f"(errors / sigma: RMS {self.check_normalized_rms:.2f}; 1 if the precision is right)",
             f"  camera positions (image centre) vs truth, RMS (m): navigation {self.camera_error_before:.2f}, "
             f"adjusted {self.camera_error_after:.2f} (errors / posterior sigma: RMS {self.camera_normalized_rms:.2f}; "
