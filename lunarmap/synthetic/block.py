@@ -50,7 +50,7 @@ from .attitude import NadirAttitude
 from .block_cameras import BLOCK_CAMERAS, BLOCK_FRAME, BLOCK_NAC, BLOCK_TC, BlockCameraSpec
 from .bodies import (MOON_RADIUS_KM, frame_rotation, j2000_to_iau_moon, moon_spin_rate, moon_state_ssb,
                      sun_state_ssb)
-from .mission import ALTITUDE_KM, FRAME_EXPOSURE_MS, MISSION_START_TDB, tdb_to_et
+from .mission import ALTITUDE_KM, FRAME_EXPOSURE_MS, MISSION_START_TDB, ImageTiming, tdb_to_et
 from .nav_errors import NavigationErrors, NavigationErrorSpec, draw_navigation_errors
 from .orbit import KeplerOrbit
 
@@ -118,7 +118,7 @@ def _east_north(lon_deg: float, lat_deg: float) -> tuple[Array, Array]:
 
 
 @dataclass(frozen=True)
-class BlockImagePlan:
+class BlockImagePlan(ImageTiming):
     """One image of the block (planned times; the manifest has the label times).
 
     Parameters
@@ -148,18 +148,6 @@ class BlockImagePlan:
     line_time: float | None
     exposure: float | None
 
-    @property
-    def samples(self) -> int:
-        return self.camera.samples
-
-    @property
-    def duration(self) -> float:
-        """Acquisition time, s."""
-        return self.lines * self.line_time if self.line_time is not None else float(self.exposure)
-
-    @property
-    def planned_start_et(self) -> float:
-        return self.center_et - 0.5 * self.duration
 
 
 @dataclass(frozen=True)

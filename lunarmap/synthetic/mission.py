@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import datetime as _dt
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -38,7 +39,7 @@ from .orbit import KeplerOrbit
 
 __all__ = [
     "MISSION_START_TDB", "MISSION_DURATION", "ALTITUDE_KM", "SPK_STEP", "SPK_DEGREE", "CK_STEP",
-    "PLANET_STEP", "PLANET_MARGIN", "NAC_IMAGE_LINES", "FRAME_EXPOSURE_MS", "ImagePlan", "SimMission",
+    "PLANET_STEP", "PLANET_MARGIN", "NAC_IMAGE_LINES", "FRAME_EXPOSURE_MS", "ImageTiming", "ImagePlan", "SimMission",
     "build_mission", "tdb_to_et",
 ]
 
@@ -83,8 +84,33 @@ def tdb_to_et(calendar_tdb: str) -> float:
     return float(delta.days * 86400 + delta.seconds) + delta.microseconds * 1e-6
 
 
+class ImageTiming:
+    """Timing of a planned image, from its ``camera``, ``lines``, ``center_et``, ``line_time``, ``exposure``."""
+
+    camera: Any
+    lines: int
+    center_et: float
+    line_time: float | None
+    exposure: float | None
+
+    @property
+    def samples(self) -> int:
+        """Image samples (the detector width)."""
+        return self.camera.samples
+
+    @property
+    def duration(self) -> float:
+        """Acquisition time, s."""
+        return self.lines * self.line_time if self.line_time is not None else float(self.exposure)
+
+    @property
+    def planned_start_et(self) -> float:
+        """Planned start time (before rounding the label's UTC to milliseconds), ET."""
+        return self.center_et - 0.5 * self.duration
+
+
 @dataclass(frozen=True)
-class ImagePlan:
+class ImagePlan(ImageTiming):
     """A predefined image of the synthetic mission (planned times; see the manifest for label times).
 
     Parameters
@@ -113,20 +139,6 @@ class ImagePlan:
     exposure: float | None
     target_latitude_deg: float
 
-    @property
-    def samples(self) -> int:
-        """Image samples (the detector width)."""
-        return self.camera.samples
-
-    @property
-    def duration(self) -> float:
-        """Acquisition time, s."""
-        return self.lines * self.line_time if self.line_time is not None else float(self.exposure)
-
-    @property
-    def planned_start_et(self) -> float:
-        """Planned start time (before rounding the label's UTC to milliseconds), ET."""
-        return self.center_et - 0.5 * self.duration
 
 
 @dataclass(frozen=True)
