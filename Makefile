@@ -18,7 +18,7 @@ $(VENV)/.installed: pyproject.toml | $(BIN)/python
 install: $(VENV)/.installed
 
 demo: install
-	$(BIN)/lunarmap demo --output demo_output
+	$(BIN)/lunarmap run --example --output demo_output
 
 test: install
 	$(BIN)/python -m pytest -q

@@ -2,9 +2,12 @@
 
 ``lunarmap isd LABEL --kernels META_KERNEL [-o FILE]``
     write the CSM image support data (ALE ISD layout) of one image.
-``lunarmap demo [--output DIR] [--seed N] [--quick]``
-    the whole chain on a synthetic mission: kernels, rendered images, tie points, adjustment with
-    navigation observations, adjusted kernels reloaded, accuracy against truth.
+``lunarmap run CONFIG [--scheduler ADDRESS] [--workers N] [--serial]``
+    the whole chain of a run configuration (TOML, see :mod:`lunarmap.workflows.config`) as one dask
+    graph: ISDs, RPCs, tie points, adjustment, adjusted kernels, report; resumable.
+``lunarmap run --example [--output DIR] [--seed N] [--quick]`` (= ``lunarmap demo``)
+    writes the embedded example (a synthetic mission with rendered images and perturbed navigation)
+    and runs it; prints accuracy against the simulation's truth.
 """
 
 from __future__ import annotations
@@ -12,7 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Sequence
+from typing import Any, Sequence
 
 from .errors import LunarmapError
 
@@ -32,21 +35,62 @@ def _cmd_isd(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_demo(args: argparse.Namespace) -> int:
+def _progress_to_stderr() -> Any:
     import logging
-
-    from .demo import run_demo
 
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("lunarmap: %(message)s"))
     log = logging.getLogger("lunarmap")
     log.addHandler(handler)
     log.setLevel(logging.INFO)
+    return handler
+
+
+def _scheduler(args: argparse.Namespace) -> Any:
+    return "sync" if args.serial else args.scheduler
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    import logging
+
+    from .demo import run_demo
+
+    handler = _progress_to_stderr()
     try:
-        report = run_demo(args.output, seed=args.seed, quick=args.quick)
+        report = run_demo(args.output, seed=args.seed, quick=args.quick, scheduler=_scheduler(args),
+                          workers=args.workers)
     finally:
-        log.removeHandler(handler)
+        logging.getLogger("lunarmap").removeHandler(handler)
     print(report.text())
+    return 0
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    import logging
+
+    if args.example:
+        if args.config:
+            raise SystemExit("lunarmap run: give a CONFIG or --example, not both")
+        return _cmd_demo(args)
+    if not args.config:
+        raise SystemExit("lunarmap run: a CONFIG (TOML) or --example is needed")
+    from .workflows import run
+
+    handler = _progress_to_stderr()
+    try:
+        result = run(args.config, scheduler=_scheduler(args), workers=args.workers)
+    finally:
+        logging.getLogger("lunarmap").removeHandler(handler)
+    s = result.summary
+    print(f"run folder {result.folder}: sigma0 {s['sigma0']:.4f}, {s['n_points']} points, "
+          f"{s['n_observations']} observations; adjusted kernels {result.outputs['metakernel']}")
+    if "check_rms_after_m" in s:
+        print("check points RMS east/north/up (m): before "
+              + " ".join(f"{v:.3f}" for v in s["check_rms_before_m"]) + ", after "
+              + " ".join(f"{v:.3f}" for v in s["check_rms_after_m"])
+              + f" (errors / posterior sigma: RMS {s['check_normalized_rms']:.2f})")
+    if result.report is not None:
+        print(f"report {result.report}")
     return 0
 
 
@@ -58,11 +102,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--kernels", "-k", required=True, help="meta-kernel (.tm)")
     p.add_argument("--output", "-o", help="output JSON file (default: standard output)")
     p.set_defaults(func=_cmd_isd)
-    d = sub.add_parser("demo", help="the whole chain on a synthetic mission with known truth")
-    d.add_argument("--output", "-o", default="demo_output", help="folder for everything the demo writes")
-    d.add_argument("--seed", type=int, default=0, help="seed of the mission, scene and measurements")
-    d.add_argument("--quick", action="store_true", help="fewer interest and check points (same chain, faster)")
-    d.set_defaults(func=_cmd_demo)
+    r = sub.add_parser("run", help="run the whole chain of a configuration (TOML) as one dask graph")
+    r.add_argument("config", nargs="?", help="run configuration (TOML)")
+    r.add_argument("--example", action="store_true",
+                   help="write the embedded example (synthetic mission, rendered images, run.toml) and run it")
+    d = sub.add_parser("demo", help="the same as 'run --example'")
+    for q in (r, d):
+        q.add_argument("--scheduler", help="address of a running dask scheduler (default: a local cluster)")
+        q.add_argument("--workers", type=int, default=2, help="processes of the local cluster (default 2)")
+        q.add_argument("--serial", action="store_true", help="run every step in this process, one after another")
+        q.add_argument("--output", "-o", default="demo_output", help="with --example: folder for everything it writes")
+        q.add_argument("--seed", type=int, default=0, help="with --example: seed of the mission, scene, measurements")
+        q.add_argument("--quick", action="store_true",
+                       help="with --example: fewer interest and check points (same chain, faster)")
+    r.set_defaults(func=_cmd_run)
+    d.set_defaults(func=_cmd_demo, example=True)
     return parser
 
 

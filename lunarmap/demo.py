@@ -1,4 +1,7 @@
-"""The demo behind ``make demo`` / ``lunarmap demo``: the whole chain on a synthetic mission with known truth.
+"""The demo behind ``make demo`` / ``lunarmap run --example``: the whole chain on a synthetic mission with known truth.
+
+:func:`lunarmap.workflows.write_example` writes the data and ``run.toml``; :func:`lunarmap.workflows.run`
+runs the chain as one dask graph; :func:`run_demo` then compares the results with the simulation's truth.
 
 1. **Mission**: :func:`lunarmap.synthetic.write_block_mission` writes a 12-image block over one site on
    3 orbits (NAC-like and Kaguya-TC-like pushbrooms, a Clementine-like frame camera, with
@@ -28,7 +31,6 @@ from __future__ import annotations
 import logging
 import os
 import time
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -83,31 +85,14 @@ class DemoReport:
             f"  camera positions (image centre) vs truth, RMS (m): navigation {self.camera_error_before:.2f}, "
             f"adjusted {self.camera_error_after:.2f} (errors / posterior sigma: RMS {self.camera_normalized_rms:.2f}; "
             "narrow fields of view trade position for attitude)",
-            f"  adjusted kernels reloaded through {self.files.get('metakernel', Path('?')).name}: cameras agree "
+            f"  adjusted kernels reloaded through {self.files.get('metakernel', Path('?'))}: cameras agree "
             f"with the adjusted ones to {self.reload_position_mm:.2e} mm / {self.reload_px:.2e} px",
-            "  cubic RFMs of the adjusted cameras (<image>_RPC.TXT), check RMS: " + ", ".join(
+            "  cubic RFMs of the cameras (outputs/rpc/<image>_RPC.TXT), check RMS: " + ", ".join(
                 f"{k} {v:.1e} px" for k, v in self.rpc_check_rms_px.items()),
             "  time (s): " + ", ".join(f"{k} {v:.1f}" for k, v in self.seconds.items()),
+            f"  report: {self.files.get('report', '')}; configuration: {self.files.get('config', '')}",
         ]
         return "\n".join(lines)
-
-
-def _network_of(points: xr.Dataset, kind: str, prefix: str, sigma_m: float = 0.0,
-                rng: np.random.Generator | None = None) -> Any:
-    """Control or check points measured in the images (:func:`lunarmap.simulate.block_check_points`) as a network."""
-    from .adjust import ControlNetwork
-
-    ids, inverse = np.unique(points["point_id"].values, return_inverse=True)
-    xyz = points["xyz"].values[ids]
-    cov = None
-    if kind == "control":
-        assert rng is not None
-        xyz = xyz + rng.normal(0.0, sigma_m, xyz.shape)       # a reference DTM/altimetry with sigma_m
-        cov = np.repeat((sigma_m ** 2 * np.eye(3))[None], ids.size, axis=0)
-    return ControlNetwork([f"{prefix}{i}" for i in ids], [kind] * ids.size, xyz, inverse,
-                          points["image_id"].values, np.column_stack([points["line"].values, points["sample"].values]),
-                          np.column_stack([points["sigma_line"].values, points["sigma_sample"].values]),
-                          np.asarray(points["image"].values).astype(str), xyz_cov=cov)
 
 
 def _grid(cam: Any, n: int = 9) -> tuple[np.ndarray, np.ndarray]:
@@ -117,7 +102,8 @@ def _grid(cam: Any, n: int = 9) -> tuple[np.ndarray, np.ndarray]:
     return L.ravel(), S.ravel()
 
 
-def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quick: bool = False) -> DemoReport:
+def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quick: bool = False,
+             scheduler: Any = None, workers: int = 2) -> DemoReport:
     """Run the chain (module docstring) in ``output``; returns its figures.
 
     Parameters
@@ -128,111 +114,72 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
         Seed of the mission, scene and measurements.
     quick : bool
         Fewer interest points and check points (for tests): same chain, about half the time.
+    scheduler, workers
+        As for :func:`lunarmap.workflows.run` (default: a local cluster of ``workers`` processes).
     """
     import lunarmap
 
-    from .adjust import NavigationSpec, SolverOptions, merge_networks, network_from_tiepoints, write_network
-    from .adjust.block import BlockResult
-    from .adjust.variance import estimate_image_variances
-    from .matching import DetectParams, MatchParams, TiePointParams, write_tiepoints
-    from .rpc import fit_rpc, write_rpc_txt
-    from .simulate import block_cameras, block_check_points, render_block
-    from .synthetic import write_block_mission
+    from .camera.factory import camera_from_isd_file
+    from .rpc import read_netcdf
+    from .simulate import block_cameras
+    from .synthetic import open_block_mission
+    from .workflows import run, write_example
 
     out = Path(output)
-    out.mkdir(parents=True, exist_ok=True)
-    seconds: dict[str, float] = {}
-    clock = time.perf_counter()
-
-    def lap(name: str) -> None:
-        nonlocal clock
-        now = time.perf_counter()
-        seconds[name] = now - clock
-        clock = now
-        _log.info("%s done (%.1f s)", name, seconds[name])
-
-    bm = write_block_mission(out / "mission", seed=seed)
+    t = time.perf_counter()
+    config = write_example(out, seed=seed, quick=quick)
+    t_example = time.perf_counter() - t
+    _log.info("example written (mission, rendered images, control and check points, run.toml): %.1f s", t_example)
+    result = run(config, scheduler=scheduler, workers=workers)
+    bm = open_block_mission(out / "mission")
     names = list(bm.image_names)
-    man = bm.manifest
-    lap("mission")
-    rendered = render_block(bm, supersample=2)
-    lap("render")
-
-    isds = {n: lunarmap.image_support(bm.label(n), bm.navigation_metakernel) for n in names}
-    cams = {n: lunarmap.camera_from_isd(isds[n]) for n in names}
-    for n, isd in isds.items():
-        isd.write_json(bm.folder / f"{n}.navigation.json")
-    lap("cameras")
-
-    # the navigation predictions of images of different orbits are tens of metres apart: a wide NCC search
-    params = TiePointParams(detect=DetectParams(cell=64 if quick else 48),
-                            match=MatchParams(search=128.0))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")      # blank/edge tiles are expected on rolled images
-        ties = lunarmap.find_tiepoints(rendered.images, cams, params=params, scheduler="threads")
-    write_tiepoints(ties, out / "tiepoints.nc")
-    lap("tie points")
-
+    s = result.summary
+    nav = {n: camera_from_isd_file(result.outputs["isd"] / f"{n}.json") for n in names}
+    adjusted = {n: camera_from_isd_file(result.outputs["adjustment"] / f"{n}.adjusted.json") for n in names}
     truth = block_cameras(bm, "truth")
-    rng = np.random.default_rng(seed + 1)
-    control = block_check_points(bm, 6, sigma_px=0.3, seed=seed + 11, cameras=truth)
-    check = block_check_points(bm, 12 if quick else 20, sigma_px=0.3, seed=seed + 12, cameras=truth)
-    net = merge_networks(network_from_tiepoints(ties), _network_of(control, "control", "C", 0.5, rng),
-                         _network_of(check, "check", "K"))
-    write_network(net, out / "control_network.nc")
-    # navigation: per image 0.5 m / 1 urad (the random part); per orbit and camera (attitude corrections are
-    # in each sensor's frame) an offset and a drift observed with the magnitudes the navigation is known to have
-    orbit = {n: f"{man['images'][n]['orbit']}-{man['images'][n]['kind']}" for n in names}
-    spec = NavigationSpec(orbit=orbit, position_sigma=0.5, attitude_sigma=1e-6, position_rate_sigma=1.0,
-                          attitude_rate_sigma=1e-6, offset="observed", drift="observed",
-                          offset_sigma=[50e-6] * 3 + [50.0] * 3, drift_sigma=[1e-6] * 3 + [1.0] * 3)
-    block = lunarmap.build_block(cams, net, degree=1, navigation=spec)
-    x0 = block.problem.points.copy()
-    groups = np.where(block.network.point_type[block.problem.obs.pt_idx] == "tie", 0, 1)
-    est = estimate_image_variances(block.problem, groups, np.array([True, False]), SolverOptions(ftol=1e-10))
-    result = BlockResult(block, est.result)
-    lap("adjustment")
 
-    before, after = result.check_points(x0), result.check_points()
-    adjusted = result.adjusted_sensors()
-    written = lunarmap.write_adjusted(result, isds, out, bm.navigation_metakernel, name="adjusted")
-    lap("adjusted kernels")
-
-    # reload from the unchanged labels through the layered meta-kernel
+    # the adjusted kernels, reloaded from the unchanged labels through the layered meta-kernel
     d_pos, d_px = 0.0, 0.0
     for n in names:
-        again = lunarmap.load_camera(bm.label(n), written.metakernel)
+        again = lunarmap.load_camera(bm.label(n), result.outputs["metakernel"])
         L, S = _grid(again)
         X = adjusted[n].image_to_ground(L, S, height=0.0)
         la, sa = again.ground_to_image(X, within_image=False)
         d_px = max(d_px, float(np.max(np.hypot(la - L, sa - S))))
         d_pos = max(d_pos, float(np.max(np.linalg.norm(again.rays(L, S)[0] - adjusted[n].rays(L, S)[0], axis=1))))
-    lap("reload")
 
     def centre_positions(sensors: dict[str, Any]) -> np.ndarray:
         return np.array([sensors[n].rays(0.5 * sensors[n].n_lines, 0.5 * sensors[n].n_samples)[0] for n in names])
 
-    p_true, p_nav, p_adj = centre_positions(truth), centre_positions(cams), centre_positions(adjusted)
-    # posterior sigma of the position correction at the image centre (c_x, c_y, c_z; tau = 0 for line scans)
-    sig = result.corrections()["sigma"].values[:, 3:6]      # columns 3-5: c (frame) / c_0 (line scan)
+    p_true, p_nav, p_adj = centre_positions(truth), centre_positions(nav), centre_positions(adjusted)
+    with xr.open_dataset(result.outputs["adjustment"] / "corrections.nc") as corr:
+        sig = corr["sigma"].values[:, 3:6]       # columns 3-5: c (frame) / c_0 (line scan), metres
     z = (p_adj - p_true) / sig
     rpc_rms: dict[str, float] = {}
+    man = bm.manifest
     for n in names:
-        fit = fit_rpc(adjusted[n], (-300.0, 300.0))
-        write_rpc_txt(fit.model, out / f"{n}_RPC.TXT")
         kind = str(man["images"][n]["kind"]).split("_")[0]
-        rpc_rms[kind] = max(rpc_rms.get(kind, 0.0), float(fit.check.rms))
-    lap("RPCs")
+        rms = float(read_netcdf(result.outputs["rpc"] / f"{n}.nc").attrs.get("check_rms", np.nan))
+        rpc_rms[kind] = max(rpc_rms.get(kind, 0.0), rms)
+    seconds = {"example": t_example, **{k: v for k, v in _stage_durations(result.stage_seconds).items()}}
     return DemoReport(
-        folder=out, images=names, n_tie_points=int(np.unique(ties["point_id"].values).size),
-        n_observations=int(ties.sizes["observation"]), sigma0=result.sigma0, tie_sigma_scale=float(est.scale[0]),
-        check_rms_before=np.asarray(before.attrs["rms_m"]), check_rms_after=np.asarray(after.attrs["rms_m"]),
-        check_sigma_after=np.sqrt(np.mean(after["sigma"].values ** 2, axis=0)),
-        check_normalized_rms=float(after.attrs["normalized_rms"]),
+        folder=out, images=names, n_tie_points=int(s["n_points"]), n_observations=int(s["n_observations"]),
+        sigma0=float(s["sigma0"]), tie_sigma_scale=float(s["tie_sigma_scale"]),
+        check_rms_before=np.asarray(s["check_rms_before_m"]), check_rms_after=np.asarray(s["check_rms_after_m"]),
+        check_sigma_after=np.asarray(s["check_sigma_after_m"]), check_normalized_rms=float(s["check_normalized_rms"]),
         camera_error_before=float(np.sqrt(np.mean(np.sum((p_nav - p_true) ** 2, axis=1)))),
         camera_error_after=float(np.sqrt(np.mean(np.sum((p_adj - p_true) ** 2, axis=1)))),
         camera_normalized_rms=float(np.sqrt(np.mean(z ** 2))), reload_position_mm=1e3 * d_pos, reload_px=d_px,
         rpc_check_rms_px=rpc_rms, seconds=seconds,
-        files={"metakernel": written.metakernel, "tiepoints": out / "tiepoints.nc",
-               "network": out / "control_network.nc", "navigation": bm.navigation_metakernel,
+        files={"metakernel": result.outputs["metakernel"], "tiepoints": result.outputs["tiepoints"],
+               "report": result.report or Path(), "config": config, "navigation": bm.navigation_metakernel,
                "truth": bm.truth_metakernel})
+
+
+def _stage_durations(ends: dict[str, float]) -> dict[str, float]:
+    """Durations from the stages' end times (a stage starts when the previous one ended)."""
+    out, prev = {}, 0.0
+    for k, v in ends.items():
+        out[k] = max(v - prev, 0.0)
+        prev = max(prev, v)
+    return out

@@ -52,6 +52,8 @@ __all__ = [
     "MissingClockError",
     "TrajectoryFitError",
     "BlockMissionError",
+    "ConfigError",
+    "WorkflowError",
 ]
 
 
@@ -244,3 +246,13 @@ class TrajectoryFitError(OrientationKernelError, ConvergenceError):
 
 class BlockMissionError(InvalidInputError, FileNotFoundError):
     """A synthetic block-mission folder is missing, incomplete or does not match its manifest."""
+
+
+# --- Workflows (lunarmap.workflows) ---------------------------------------------
+
+class ConfigError(LunarmapError, ValueError):
+    """A run configuration is unusable: unknown section or key, wrong type, missing file (all named)."""
+
+
+class WorkflowError(LunarmapError):
+    """A step of a run failed; the message names the step, the image or pair, and the cause."""

@@ -37,10 +37,10 @@ def test_isd_command_reports_errors_and_writes_nothing(sim_mission, tmp_path, ca
 
 
 def test_demo_runs_the_whole_chain(tmp_path, capsys):
-    """``lunarmap demo --quick``: rendered images, tie points from the matcher, adjustment on the rigorous
+    """``lunarmap run --example --quick``: rendered images, tie points from the matcher, adjustment on the rigorous
     cameras with navigation observations, adjusted kernels reloaded; accuracy against the simulation's truth."""
     out = tmp_path / "demo"
-    assert main(["demo", "--output", str(out), "--quick"]) == 0
+    assert main(["run", "--example", "--output", str(out), "--quick", "--serial"]) == 0
     text = capsys.readouterr().out
     assert "nan" not in text.lower()
     before = np.array(text.split("before (navigation):")[1].split("\n")[0].split(), float)
@@ -54,11 +54,13 @@ def test_demo_runs_the_whole_chain(tmp_path, capsys):
     assert abs(sigma0 - 1.0) < 0.1
     mm, px = (float(v) for v in text.split("agree with the adjusted ones to ")[1].split(" px")[0].split(" mm / "))
     assert mm <= 1.0 and px <= 1e-4
-    for f in ("adjusted.tm", "adjusted.bsp", "adjusted.bc", "tiepoints.nc", "control_network.nc",
-              "orbit1_nac_RPC.TXT", "orbit2_frame_a.adjusted.json"):
-        assert (out / f).is_file(), f
+    outputs = out / "run" / "outputs"
+    for f in ("adjusted.tm", "tiepoints.nc", "rpc/orbit1_nac_RPC.TXT", "adjustment/orbit2_frame_a.adjusted.json",
+              "adjustment/points.nc", "isd/orbit3_tc.json"):
+        assert (outputs / f).is_file(), f
+    assert (out / "run" / "report" / "index.html").is_file() and (out / "run.toml").is_file()
     from lunarmap.adjust import read_network
     from lunarmap.matching import read_tiepoints
 
-    assert read_tiepoints(out / "tiepoints.nc").sizes["observation"] > 1000
-    assert set(read_network(out / "control_network.nc").point_type) == {"tie", "control", "check"}
+    assert read_tiepoints(outputs / "tiepoints.nc").sizes["observation"] > 1000
+    assert set(read_network(out / "points.nc").point_type) == {"control", "check"}

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ._blas import single_threaded_blas
+from ..blas import single_threaded_blas
 from ..errors import RpcFitError, RpcInputError
 from ..camera.sensor import SensorModel
 from .grid import (DEFAULT_HEIGHT_RANGE, GridNodes, GroundGrid, check_grid_nodes, fit_grid_nodes,
@@ -358,7 +358,7 @@ def fit_rpc(camera: SensorModel, height_range: tuple[float, float] | None = None
         opts = FitOptions(**{**asdict(opts), **option_overrides})
     layers = height_layers(opts.height_range, opts.n_layers, opts.margin)
     nodes = fit_grid_nodes(camera.n_lines, camera.n_samples, layers, opts.short_axis, opts.long_axis_max)
-    # One BLAS thread for the whole fit: see lunarmap.rpc._blas (and dask
+    # One BLAS thread for the whole fit: see lunarmap.blas (and dask
     # workers run one, so serial and distributed results are bitwise equal).
     with single_threaded_blas():
         grid = rigorous_grid(camera, nodes, opts.max_emission)

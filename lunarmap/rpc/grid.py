@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..camera.geodesy import xyz_to_lonlat_height
 from ..camera.sensor import SensorModel
-from ._blas import single_threaded_blas
+from ..blas import single_threaded_blas
 from ..errors import RpcGridError, RpcInputError, RpcLimbError
 
 __all__ = ["GridNodes", "GroundGrid", "height_layers", "fit_grid_nodes", "check_grid_nodes",

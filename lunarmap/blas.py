@@ -1,6 +1,6 @@
 """Run a block with single-threaded OpenBLAS (best effort, no dependency).
 
-Why: the fit's least-squares problems are tall and thin (tens of thousands
+Why (first met in the RPC fit): its least-squares problems are tall and thin (tens of thousands
 of rows, 39 columns). On this project's shared 2-core machines, OpenBLAS's
 threads made ``numpy.linalg.lstsq`` on them 10-20 times slower than one
 thread whenever another process held a core (measured: 6.4 s vs 0.4 s for

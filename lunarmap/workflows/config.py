@@ -1,0 +1,288 @@
+"""Run configuration: a TOML file, read without executing anything, validated before any work starts.
+
+Layout (every relative path is taken relative to the configuration file's folder)::
+
+    [run]
+    output = "run_output"            # run folder: store, outputs, report, log
+    name = "my block"                # free text, for the report
+
+    [kernels]
+    metakernel = "mission/navigation.tm"
+
+    [[images]]
+    name = "orbit1_nac"              # unique; letters, digits, _ . -
+    label = "mission/orbit1_nac.lbl" # ISIS or PDS3 label
+    pixels = "mission/orbit1_nac.nc" # netCDF (xarray DataArray, dims line x sample)
+    group = "1-nac"                  # navigation group (orbit, camera): offsets/drifts are per group
+
+    [dtm]                            # optional: heights for the tie-point prediction
+    path = "mission/dtm.nc"          # netCDF DataArray on lat x lon, metres above the reference radius
+
+    [points]                         # optional: control and check points measured in the images
+    path = "points.nc"               # a lunarmap control network (lunarmap.adjust.write_network)
+
+    [rpc]
+    enabled = true
+    height_range = [-300.0, 300.0]   # metres
+
+    [tiepoints]
+    cell = 48                        # interest-point grid cell, pixels
+    search = 128.0                   # NCC search radius, pixels
+    min_overlap = 0.05               # pairs whose footprints overlap less than this fraction are skipped
+
+    [adjust]
+    degree = 1                       # line-scan correction polynomial degree
+    estimate_tie_variance = true     # variance factor of the matcher's sigmas
+    ftol = 1e-10
+
+    [adjust.navigation]              # optional: navigation observations
+    position_sigma = 0.5             # m per image
+    attitude_sigma = 1e-6            # rad per image
+    position_rate_sigma = 1.0        # m/s (line-scan higher coefficients)
+    attitude_rate_sigma = 1e-6       # rad/s
+    offset = "observed"              # "fixed" | "free" | "observed" (per group)
+    drift = "observed"
+    offset_sigma = [50e-6, 50e-6, 50e-6, 50.0, 50.0, 50.0]     # rad, rad, rad, m, m, m
+    drift_sigma = [1e-6, 1e-6, 1e-6, 1.0, 1.0, 1.0]           # rad/s, m/s
+
+    [report]
+    html = true
+
+An unknown section or key, a value of the wrong type and a file that does not exist are
+:class:`~lunarmap.errors.ConfigError`\\ s naming the key and the configuration file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import sys
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from ..errors import ConfigError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+__all__ = ["ImageSpec", "NavigationConfig", "RunConfig", "load_config", "config_from_dict"]
+
+_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+
+
+@dataclass(frozen=True)
+class ImageSpec:
+    """One image of a run: its name, label, pixels and navigation group (paths absolute)."""
+
+    name: str
+    label: Path
+    pixels: Path
+    group: str = ""
+
+
+@dataclass(frozen=True)
+class NavigationConfig:
+    """Navigation observations (see :class:`lunarmap.adjust.NavigationSpec`); SI units."""
+
+    position_sigma: float
+    attitude_sigma: float
+    position_rate_sigma: float | None = None
+    attitude_rate_sigma: float | None = None
+    offset: str = "fixed"
+    drift: str = "fixed"
+    offset_sigma: tuple[float, ...] | None = None
+    drift_sigma: tuple[float, ...] | None = None
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """A validated run configuration (see the module docstring)."""
+
+    source: Path
+    output: Path
+    metakernel: Path
+    images: tuple[ImageSpec, ...]
+    name: str = ""
+    dtm: Path | None = None
+    points: Path | None = None
+    rpc_enabled: bool = True
+    rpc_height_range: tuple[float, float] = (-300.0, 300.0)
+    cell: int = 48
+    search: float = 128.0
+    min_overlap: float = 0.05
+    degree: int = 1
+    estimate_tie_variance: bool = True
+    ftol: float = 1e-10
+    navigation: NavigationConfig | None = None
+    html: bool = True
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def digest(self) -> str:
+        """SHA-256 of the configuration's content (paths and values), for provenance."""
+        d = asdict(self)
+        d.pop("source")
+        return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()
+
+
+_MODES = ("fixed", "free", "observed")
+_SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], bool]]] = {
+    # section -> key -> (types, required)
+    "run": {"output": (str, True), "name": (str, False)},
+    "kernels": {"metakernel": (str, True)},
+    "dtm": {"path": (str, True)},
+    "points": {"path": (str, True)},
+    "rpc": {"enabled": (bool, False), "height_range": (list, False)},
+    "tiepoints": {"cell": (int, False), "search": ((int, float), False), "min_overlap": ((int, float), False)},
+    "adjust": {"degree": (int, False), "estimate_tie_variance": (bool, False), "ftol": ((int, float), False),
+               "navigation": (dict, False)},
+    "report": {"html": (bool, False)},
+}
+_NAV = {"position_sigma": ((int, float), True), "attitude_sigma": ((int, float), True),
+        "position_rate_sigma": ((int, float), False), "attitude_rate_sigma": ((int, float), False),
+        "offset": (str, False), "drift": (str, False), "offset_sigma": (list, False), "drift_sigma": (list, False)}
+_IMAGE = {"name": (str, True), "label": (str, True), "pixels": (str, True), "group": ((str, int), False)}
+
+
+def _type_name(t: type | tuple[type, ...]) -> str:
+    ts = t if isinstance(t, tuple) else (t,)
+    return " or ".join({"str": "a string", "int": "an integer", "float": "a number", "bool": "true/false",
+                        "list": "an array", "dict": "a table"}[x.__name__] for x in ts)
+
+
+def _check_table(table: Mapping[str, Any], schema: Mapping[str, tuple[Any, bool]], where: str, src: str) -> None:
+    for key in table:
+        if key not in schema:
+            raise ConfigError(f"{src}: unknown key {where}.{key} (known: {', '.join(sorted(schema))})")
+    for key, (types, required) in schema.items():
+        if key not in table:
+            if required:
+                raise ConfigError(f"{src}: missing required key {where}.{key}")
+            continue
+        v = table[key]
+        ok = isinstance(v, types) and not (isinstance(v, bool) and bool not in (types if isinstance(types, tuple)
+                                                                                  else (types,)))
+        if not ok:
+            raise ConfigError(f"{src}: {where}.{key} must be {_type_name(types)}, got {v!r}")
+
+
+def _path(base: Path, value: str, key: str, src: str, must_exist: bool = True) -> Path:
+    p = Path(value)
+    p = p if p.is_absolute() else (base / p)
+    if must_exist and not p.exists():
+        raise ConfigError(f"{src}: {key} = {value!r}: file {p} does not exist")
+    return p
+
+
+def _numbers(v: list, n: int, key: str, src: str) -> tuple[float, ...]:
+    if len(v) != n or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+        raise ConfigError(f"{src}: {key} must be an array of {n} numbers, got {v!r}")
+    return tuple(float(x) for x in v)
+
+
+def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",
+                     source: str = "<dict>") -> RunConfig:
+    """Validate a configuration already parsed into a dict (``base``: folder for relative paths)."""
+    src = source
+    base_p = Path(base)
+    for section in d:
+        if section != "images" and section not in _SCHEMA:
+            raise ConfigError(f"{src}: unknown section [{section}] (known: images, {', '.join(sorted(_SCHEMA))})")
+    for section, schema in _SCHEMA.items():
+        if section in d:
+            if not isinstance(d[section], dict):
+                raise ConfigError(f"{src}: [{section}] must be a table")
+            _check_table(d[section], schema, section, src)
+    for required in ("run", "kernels"):
+        if required not in d:
+            raise ConfigError(f"{src}: missing section [{required}]")
+    images_raw = d.get("images")
+    if not isinstance(images_raw, list) or not images_raw:
+        raise ConfigError(f"{src}: [[images]] must list at least 2 images")
+    images = []
+    seen: set[str] = set()
+    for k, im in enumerate(images_raw):
+        where = f"images[{k}]"
+        if not isinstance(im, dict):
+            raise ConfigError(f"{src}: {where} must be a table")
+        _check_table(im, _IMAGE, where, src)
+        name = im["name"]
+        if not _NAME.match(name):
+            raise ConfigError(f"{src}: {where}.name {name!r} may hold only letters, digits, '_', '.', '-'")
+        if name in seen:
+            raise ConfigError(f"{src}: {where}.name {name!r} repeats")
+        seen.add(name)
+        images.append(ImageSpec(name, _path(base_p, im["label"], f"{where}.label", src),
+                                _path(base_p, im["pixels"], f"{where}.pixels", src), str(im.get("group", ""))))
+    if len(images) < 2:
+        raise ConfigError(f"{src}: [[images]] must list at least 2 images")
+    run, rpc, tp = d["run"], d.get("rpc", {}), d.get("tiepoints", {})
+    adj, rep = d.get("adjust", {}), d.get("report", {})
+    nav = None
+    if "navigation" in adj:
+        n = adj["navigation"]
+        _check_table(n, _NAV, "adjust.navigation", src)
+        for key in ("offset", "drift"):
+            if key in n and n[key] not in _MODES:
+                raise ConfigError(f"{src}: adjust.navigation.{key} must be one of {_MODES}, got {n[key]!r}")
+        for key in ("position_sigma", "attitude_sigma", "position_rate_sigma", "attitude_rate_sigma"):
+            if key in n and not n[key] > 0:
+                raise ConfigError(f"{src}: adjust.navigation.{key} must be > 0, got {n[key]!r}")
+        nav = NavigationConfig(
+            float(n["position_sigma"]), float(n["attitude_sigma"]),
+            float(n["position_rate_sigma"]) if "position_rate_sigma" in n else None,
+            float(n["attitude_rate_sigma"]) if "attitude_rate_sigma" in n else None,
+            n.get("offset", "fixed"), n.get("drift", "fixed"),
+            _numbers(n["offset_sigma"], 6, "adjust.navigation.offset_sigma", src) if "offset_sigma" in n else None,
+            _numbers(n["drift_sigma"], 6, "adjust.navigation.drift_sigma", src) if "drift_sigma" in n else None)
+        for key, mode in (("offset", nav.offset), ("drift", nav.drift)):
+            if mode == "observed" and getattr(nav, f"{key}_sigma") is None:
+                raise ConfigError(f"{src}: adjust.navigation.{key} = 'observed' needs adjust.navigation.{key}_sigma")
+    height_range = _numbers(rpc["height_range"], 2, "rpc.height_range", src) if "height_range" in rpc \
+        else (-300.0, 300.0)
+    if not height_range[1] > height_range[0]:
+        raise ConfigError(f"{src}: rpc.height_range must increase, got {list(height_range)}")
+    degree = int(adj.get("degree", 1))
+    if degree not in (0, 1, 2):
+        raise ConfigError(f"{src}: adjust.degree must be 0, 1 or 2, got {degree}")
+    cell = int(tp.get("cell", 48))
+    if cell < 8:
+        raise ConfigError(f"{src}: tiepoints.cell must be >= 8 pixels, got {cell}")
+    search = float(tp.get("search", 128.0))
+    if not search > 0:
+        raise ConfigError(f"{src}: tiepoints.search must be > 0 pixels, got {search}")
+    min_overlap = float(tp.get("min_overlap", 0.05))
+    if not 0.0 <= min_overlap < 1.0:
+        raise ConfigError(f"{src}: tiepoints.min_overlap must be in [0, 1), got {min_overlap}")
+    return RunConfig(
+        source=Path(source).resolve() if source != "<dict>" else Path(source),
+        output=_path(base_p, run["output"], "run.output", src, must_exist=False),
+        metakernel=_path(base_p, d["kernels"]["metakernel"], "kernels.metakernel", src),
+        images=tuple(images), name=str(run.get("name", "")),
+        dtm=_path(base_p, d["dtm"]["path"], "dtm.path", src) if "dtm" in d else None,
+        points=_path(base_p, d["points"]["path"], "points.path", src) if "points" in d else None,
+        rpc_enabled=bool(rpc.get("enabled", True)), rpc_height_range=height_range, cell=cell, search=search,
+        min_overlap=min_overlap, degree=degree, estimate_tie_variance=bool(adj.get("estimate_tie_variance", True)),
+        ftol=float(adj.get("ftol", 1e-10)), navigation=nav, html=bool(rep.get("html", True)))
+
+
+def load_config(path: str | os.PathLike[str]) -> RunConfig:
+    """Read and validate a TOML run configuration (no code is executed; see the module docstring).
+
+    Raises
+    ------
+    ConfigError
+        Unreadable TOML, unknown section or key, wrong type, missing file (each names key and file).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"run configuration {p} does not exist")
+    try:
+        d = tomllib.loads(p.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise ConfigError(f"{p}: not valid TOML: {err}") from None
+    return config_from_dict(d, base=p.resolve().parent, source=str(p))

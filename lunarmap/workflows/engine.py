@@ -1,0 +1,364 @@
+"""``lunarmap.workflows.run``: the whole chain of a configuration as one dask graph, resumable, with progress.
+
+The graph (every node a step of :mod:`.steps`, named ``<stage>-<key>``)::
+
+    per image      isd -> rpc
+    per tile       detect
+    per pair       match  (skipped, and recorded as such, when the footprints do not overlap)
+    block          tiepoints -> adjust (quality control: the tie points' variance factor) -> kernels
+
+Keys are computed before anything runs, from the inputs' content and the parameters
+(:mod:`.store`), so a rerun skips every finished step and a changed parameter reruns exactly what
+depends on it. The graph runs serially (``scheduler="sync"``), on a ``distributed.LocalCluster``
+(the default: ``workers`` processes) or on a running ``dask scheduler`` given its address; kernels reach
+the workers through :class:`lunarmap.parallel.SpiceKernelPlugin`. Progress goes to the ``lunarmap``
+logger per stage (tasks done / total, stage wall time) and to ``<run>/run.log``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import dask
+import numpy as np
+import xarray as xr
+
+from ..errors import ConfigError, WorkflowError
+from .config import RunConfig, load_config
+from .steps import (Done, adjust_step, as_dict, detect_step, isd_step, kernels_step, match_step, provenance,
+                    rpc_step, tiepoints_step)
+from .store import Store, file_digest, files_digest, step_key
+
+__all__ = ["RunResult", "run", "build_graph", "STAGES"]
+
+_log = logging.getLogger(__name__)
+
+#: Stages in graph order.
+STAGES = ("isd", "rpc", "detect", "match", "tiepoints", "adjust", "kernels")
+
+
+@dataclass
+class RunResult:
+    """What a run produced.
+
+    Attributes
+    ----------
+    config : RunConfig
+    folder : pathlib.Path
+        The run folder.
+    summary : dict
+        The adjustment's figures (``<run>/outputs/adjustment/summary.json``).
+    outputs : dict name -> pathlib.Path
+        Files and folders in ``<run>/outputs``.
+    done : list of Done
+        Every step's record.
+    stage_seconds : dict
+        Wall time from the start of the graph to each stage's last task.
+    report : pathlib.Path or None
+        The HTML report.
+    """
+
+    config: RunConfig
+    folder: Path
+    summary: dict[str, Any]
+    outputs: dict[str, Path]
+    done: list[Done]
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+    report: Path | None = None
+
+    def counts(self) -> dict[str, tuple[int, int]]:
+        """Per stage: (steps computed in this run, steps found in the store)."""
+        out: dict[str, tuple[int, int]] = {}
+        for d in self.done:
+            c, s = out.get(d.step, (0, 0))
+            out[d.step] = (c + int(d.computed), s + int(not d.computed))
+        return out
+
+    @property
+    def computed(self) -> int:
+        """Number of steps this run computed (0 when everything was already done)."""
+        return sum(int(d.computed) for d in self.done)
+
+
+@dataclass
+class _Graph:
+    tasks: dict[str, Any]            # dask key -> Delayed, every step
+    targets: list[Any]               # the sinks to compute
+    stage_of: dict[str, str]         # dask key -> stage
+    names: list[str]
+    pairs: list[tuple[str, str]]
+
+
+def build_graph(cfg: RunConfig, store: Store) -> _Graph:
+    """The run's graph of store-aware steps (nothing is computed)."""
+    from ..matching import DetectParams, MatchParams, TiePointParams
+    from ..matching.tiepoints import tile_windows
+    from ..spice import KernelSet
+
+    kset = KernelSet.from_metakernel(cfg.metakernel)
+    kset.check_files()
+    kernels_digest = files_digest([cfg.metakernel, *kset.paths])
+    params = TiePointParams(detect=DetectParams(cell=cfg.cell), match=MatchParams(search=cfg.search))
+    digest = cfg.digest()
+    attrs = provenance(digest, kset.paths)
+    tasks: dict[str, Any] = {}
+    stage_of: dict[str, str] = {}
+
+    def node(stage: str, key: str, fn: Callable[..., Done], *args: Any) -> Any:
+        name = f"{stage}-{key}"
+        if name not in tasks:
+            tasks[name] = dask.delayed(fn, pure=False)(*args, dask_key_name=name)
+            stage_of[name] = stage
+        return tasks[name]
+
+    names = [im.name for im in cfg.images]
+    isd, rpc, tiles, isd_key, tile_keys, pix = {}, {}, {}, {}, {}, {}
+    halo = params.detect.border + params.detect.window + params.detect.nms
+    for im in cfg.images:
+        try:
+            pix[im.name] = file_digest(im.pixels)
+            with xr.open_dataarray(im.pixels) as da:
+                shape = tuple(int(s) for s in da.shape)
+        except (OSError, ValueError) as err:
+            raise ConfigError(f"{cfg.source}: image {im.name}: pixels {im.pixels} are not a readable netCDF image "
+                              f"({err})") from None
+        if len(shape) != 2:
+            raise ConfigError(f"{cfg.source}: image {im.name}: pixels {im.pixels} are not 2-D (shape {shape})")
+        isd_key[im.name] = step_key("isd", None, [file_digest(im.label), kernels_digest])
+        isd[im.name] = node("isd", isd_key[im.name], isd_step, store, isd_key[im.name], im.name, str(im.label),
+                            str(cfg.metakernel))
+        if cfg.rpc_enabled:
+            k = step_key("rpc", list(cfg.rpc_height_range), [isd_key[im.name]])
+            rpc[im.name] = node("rpc", k, rpc_step, store, k, isd[im.name], cfg.rpc_height_range)
+        tiles[im.name], tile_keys[im.name] = [], []
+        for core, pad in tile_windows(shape, params.detect.tile, halo):   # type: ignore[arg-type]
+            k = step_key("detect", repr(params.detect), [pix[im.name], list(core), list(pad)])
+            tiles[im.name].append(node("detect", k, detect_step, store, k, im.name, str(im.pixels), core, pad,
+                                       params.detect, params.match.saturation))
+            tile_keys[im.name].append(k)
+    dtm = str(cfg.dtm) if cfg.dtm is not None else None
+    dtm_digest = file_digest(cfg.dtm) if cfg.dtm is not None else ""
+    pairs, matches, match_keys = [], [], []
+    spec = {im.name: im for im in cfg.images}
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            k = step_key("match", [repr(params.match), repr(params.ransac), cfg.min_overlap],
+                         [pix[a], pix[b], isd_key[a], isd_key[b], dtm_digest, *tile_keys[a]])
+            matches.append(node("match", k, match_step, store, k, (a, b), (str(spec[a].pixels), str(spec[b].pixels)),
+                                (isd[a], isd[b]), tiles[a], dtm, params, cfg.min_overlap))
+            pairs.append((a, b))
+            match_keys.append(k)
+    k_tie = step_key("tiepoints", params.track_tol, match_keys)
+    ties = node("tiepoints", k_tie, tiepoints_step, store, k_tie, names, pairs, matches, params.track_tol, attrs)
+    nav = None
+    if cfg.navigation is not None:
+        n = cfg.navigation
+        nav = {"position_sigma": n.position_sigma, "attitude_sigma": n.attitude_sigma,
+               "position_rate_sigma": n.position_rate_sigma, "attitude_rate_sigma": n.attitude_rate_sigma,
+               "offset": n.offset, "drift": n.drift,
+               "offset_sigma": list(n.offset_sigma) if n.offset_sigma else None,
+               "drift_sigma": list(n.drift_sigma) if n.drift_sigma else None}
+    groups = [im.group for im in cfg.images]
+    points = str(cfg.points) if cfg.points is not None else None
+    k_adj = step_key("adjust", [cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, groups, names],
+                     [isd_key[n] for n in names] + [k_tie, file_digest(cfg.points) if points else ""])
+    adj = node("adjust", k_adj, adjust_step, store, k_adj, names, groups, [isd[n] for n in names], ties, points,
+               cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, attrs)
+    k_ker = step_key("kernels", None, [k_adj, kernels_digest])
+    ker = node("kernels", k_ker, kernels_step, store, k_ker, names, adj, [isd[n] for n in names],
+               str(cfg.metakernel))
+    targets = [ker, *rpc.values()]
+    return _Graph(tasks, targets, stage_of, names, pairs)
+
+
+class _Progress:
+    """Tasks done per stage, logged when a stage completes and at most every ``every`` seconds."""
+
+    def __init__(self, stage_of: dict[str, str], every: float = 5.0) -> None:
+        self.stage_of = stage_of
+        self.total = {s: 0 for s in STAGES}
+        for s in stage_of.values():
+            self.total[s] += 1
+        self.done = {s: 0 for s in STAGES}
+        self.records: list[Done] = []
+        self.start = time.perf_counter()
+        self.stage_seconds: dict[str, float] = {}
+        self.every = every
+        self._last = 0.0
+
+    def finished(self, key: str, result: Any) -> None:
+        stage = self.stage_of.get(key)
+        if stage is None:
+            return
+        self.done[stage] += 1
+        if isinstance(result, Done):
+            self.records.append(result)
+        now = time.perf_counter() - self.start
+        if self.done[stage] == self.total[stage]:
+            self.stage_seconds[stage] = now
+            _log.info("%-9s %4d/%-4d done at %6.1f s", stage, self.done[stage], self.total[stage], now)
+        elif now - self._last > self.every:
+            self._last = now
+            _log.info("progress: %s", "  ".join(f"{s} {self.done[s]}/{self.total[s]}" for s in STAGES
+                                                  if self.total[s]))
+
+
+def _execute(graph: _Graph, scheduler: Any, progress: _Progress) -> None:
+    keys = list(graph.tasks)
+    delayed = [graph.tasks[k] for k in keys]
+    if hasattr(scheduler, "compute") and hasattr(scheduler, "submit"):   # a distributed.Client
+        from distributed import as_completed
+
+        futures = scheduler.compute(delayed)
+        by_key = {f.key: k for f, k in zip(futures, keys)}
+        try:
+            for fut in as_completed(futures):
+                err = fut.exception()
+                if err is not None:
+                    raise err
+                progress.finished(by_key[fut.key], fut.result())
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            raise
+        return
+    from dask.callbacks import Callback
+
+    def post(key: Any, result: Any, dsk: Any, state: Any, worker_id: Any) -> None:
+        progress.finished(key if isinstance(key, str) else str(key), result)
+
+    with Callback(posttask=post):
+        dask.compute(*delayed, scheduler=scheduler)
+
+
+def _export(cfg: RunConfig, graph: _Graph, records: list[Done]) -> tuple[dict[str, Path], dict[str, Any]]:
+    out = cfg.output / "outputs"
+    out.mkdir(parents=True, exist_ok=True)
+    by_stage: dict[str, list[Done]] = {}
+    for d in records:
+        by_stage.setdefault(d.step, []).append(d)
+    files: dict[str, Path] = {}
+
+    def copy(src: str | Path, dst: Path) -> Path:
+        tmp = dst.with_name(f".{dst.name}.tmp")
+        if Path(src).is_dir():
+            shutil.rmtree(tmp, ignore_errors=True)
+            shutil.copytree(src, tmp)
+            shutil.rmtree(dst, ignore_errors=True)
+        else:
+            shutil.copyfile(src, tmp)
+        os.replace(tmp, dst)
+        return dst
+
+    files["tiepoints"] = copy(by_stage["tiepoints"][0].path, out / "tiepoints.nc")
+    files["adjustment"] = copy(by_stage["adjust"][0].path, out / "adjustment")
+    files["metakernel"] = copy(by_stage["kernels"][0].path, out / "adjusted.tm")
+    if "rpc" in by_stage:
+        from ..rpc import read_netcdf, write_rpc_txt
+
+        (out / "rpc").mkdir(exist_ok=True)
+        for d in by_stage["rpc"]:
+            copy(d.path, out / "rpc" / f"{d.item}.nc")
+            write_rpc_txt(read_netcdf(d.path), out / "rpc" / f"{d.item}_RPC.TXT")
+        files["rpc"] = out / "rpc"
+    (out / "isd").mkdir(exist_ok=True)
+    for d in by_stage["isd"]:
+        copy(d.path, out / "isd" / f"{d.item}.json")
+    files["isd"] = out / "isd"
+    summary = json.loads((files["adjustment"] / "summary.json").read_text())
+    steps = [as_dict(d) for d in records]
+    skipped = [d for d in by_stage.get("match", []) if d.note.startswith("skipped")]
+    summary["skipped_pairs"] = [f"{d.item}: {d.note}" for d in skipped]
+    (cfg.output / "steps.json").write_text(json.dumps(steps, indent=1))
+    return files, summary
+
+
+def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, workers: int = 2,
+        report: bool | None = None) -> RunResult:
+    """Run the chain of a configuration (see the module docstring).
+
+    Parameters
+    ----------
+    config : RunConfig or path-like
+        A validated configuration or the path of its TOML file.
+    scheduler : None, "sync", "threads", a scheduler address (``"tcp://host:8786"``) or a ``distributed.Client``
+        ``None`` starts a ``LocalCluster`` of ``workers`` processes for the run.
+    workers : int
+        Processes of the local cluster.
+    report : bool, optional
+        Write the HTML report (default: the configuration's ``report.html``).
+
+    Raises
+    ------
+    ConfigError
+        Invalid configuration or inputs, found before any work starts.
+    WorkflowError
+        A step failed (named); finished steps stay in the store, and a rerun resumes.
+    """
+    cfg = config if isinstance(config, RunConfig) else load_config(config)
+    cfg.output.mkdir(parents=True, exist_ok=True)
+    store = Store(cfg.output / "store")
+    handler = logging.FileHandler(cfg.output / "run.log")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s %(message)s"))
+    root = logging.getLogger("lunarmap")
+    root.addHandler(handler)
+    if root.level == logging.NOTSET or root.level > logging.INFO:
+        root.setLevel(logging.INFO)
+    client = cluster = None
+    try:
+        graph = build_graph(cfg, store)
+        _log.info("run %s: %d images, %d pairs, %d steps -> %s", cfg.name or cfg.source, len(graph.names),
+                  len(graph.pairs), len(graph.tasks), cfg.output)
+        progress = _Progress(graph.stage_of)
+        sched: Any = scheduler
+        if scheduler is None or (isinstance(scheduler, str) and scheduler not in ("sync", "threads",
+                                                                                   "synchronous", "processes")):
+            client, cluster = _client(scheduler, workers, cfg)
+            sched = client
+            _log.info("dask dashboard: %s", client.dashboard_link)
+        _execute(graph, sched, progress)
+        files, summary = _export(cfg, graph, progress.records)
+        result = RunResult(cfg, cfg.output, summary, files, progress.records, progress.stage_seconds)
+        if cfg.html if report is None else report:
+            from .report import write_report
+
+            result.report = write_report(result)
+        counts = result.counts()
+        _log.info("run finished: %s", ", ".join(f"{s} {c} computed / {k} reused" for s, (c, k) in counts.items()))
+        return result
+    finally:
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+        root.removeHandler(handler)
+        handler.close()
+
+
+def _client(address: Any, workers: int, cfg: RunConfig) -> tuple[Any, Any]:
+    from distributed import Client, LocalCluster
+
+    from ..matching import WORKER_ENVIRON
+    from ..parallel import register_kernels
+
+    cluster = None
+    if address is None:
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": WORKER_ENVIRON}):
+            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                                   dashboard_address=":0")
+        client = Client(cluster)
+    else:
+        try:
+            client = Client(address, timeout="10s")
+        except (OSError, TimeoutError) as err:
+            raise ConfigError(f"no dask scheduler at {address}: {err}") from None
+    register_kernels(client, str(cfg.metakernel))
+    return client, cluster
+

@@ -1,0 +1,128 @@
+"""The embedded example of ``lunarmap run --example``: a synthetic mission with rendered images and a config.
+
+:func:`write_example` writes, into one folder, the 12-image synthetic block of
+:func:`lunarmap.synthetic.write_block_mission` (TRUTH and NAVIGATION kernels, labels), its images
+rendered from a synthetic DTM through the truth cameras (:func:`lunarmap.simulate.render_block`),
+control points (coordinates from a reference with ``control_sigma`` metres) and check points measured in
+the images (``sigma_px``) as a control network, and ``run.toml``: the run configuration over the
+NAVIGATION kernels, so that a run starts where a user with real data starts.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["write_example", "EXAMPLE_CONFIG"]
+
+#: The configuration written next to the example data (``{...}`` filled in).
+EXAMPLE_CONFIG = """# lunarmap run configuration of the embedded example (lunarmap run --example)
+[run]
+output = "{output}"
+name = "synthetic block: 12 images, 3 orbits, NAC-like / TC-like / frame cameras (seed {seed})"
+
+[kernels]
+metakernel = "mission/navigation.tm"
+
+{images}
+[dtm]
+path = "mission/dtm.nc"
+
+[points]
+path = "points.nc"
+
+[rpc]
+enabled = true
+height_range = [-300.0, 300.0]
+
+[tiepoints]
+cell = {cell}
+search = 128.0
+min_overlap = 0.05
+
+[adjust]
+degree = 1
+estimate_tie_variance = true
+ftol = 1e-10
+
+[adjust.navigation]
+position_sigma = 0.5
+attitude_sigma = 1e-6
+position_rate_sigma = 1.0
+attitude_rate_sigma = 1e-6
+offset = "observed"
+drift = "observed"
+offset_sigma = [50e-6, 50e-6, 50e-6, 50.0, 50.0, 50.0]
+drift_sigma = [1e-6, 1e-6, 1e-6, 1.0, 1.0, 1.0]
+
+[report]
+html = true
+"""
+
+
+def _points_network(points, kind: str, prefix: str, sigma_m: float = 0.0, rng=None):
+    from ..adjust import ControlNetwork
+
+    ids, inverse = np.unique(points["point_id"].values, return_inverse=True)
+    xyz = points["xyz"].values[ids]
+    cov = None
+    if kind == "control":
+        xyz = xyz + rng.normal(0.0, sigma_m, xyz.shape)       # a reference DTM / altimetry with sigma_m
+        cov = np.repeat((sigma_m ** 2 * np.eye(3))[None], ids.size, axis=0)
+    return ControlNetwork([f"{prefix}{i}" for i in ids], [kind] * ids.size, xyz, inverse,
+                          points["image_id"].values, np.column_stack([points["line"].values, points["sample"].values]),
+                          np.column_stack([points["sigma_line"].values, points["sigma_sample"].values]),
+                          np.asarray(points["image"].values).astype(str), xyz_cov=cov)
+
+
+def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = False, n_control: int = 6,
+                  n_check: int | None = None, control_sigma: float = 0.5, sigma_px: float = 0.3,
+                  names: list[str] | None = None, output: str = "run") -> Path:
+    """Write the example's data and configuration; returns the path of ``run.toml``.
+
+    Parameters
+    ----------
+    folder : path-like
+        Created if needed.
+    seed : int
+        Seed of the mission, scene and measurements.
+    quick : bool
+        Fewer interest points and check points (tests).
+    n_control, n_check : int
+        Control and check points (check default 20, or 12 with ``quick``).
+    control_sigma : float
+        Sigma of the control coordinates, metres.
+    sigma_px : float
+        Measurement noise of control and check points, pixels.
+    names : list of str, optional
+        A subset of the block's images (default all 12).
+    output : str
+        Run folder, relative to ``folder``.
+    """
+    from ..adjust import merge_networks, write_network
+    from ..simulate import block_cameras, block_check_points, render_block
+    from ..synthetic import write_block_mission
+
+    root = Path(folder)
+    root.mkdir(parents=True, exist_ok=True)
+    bm = write_block_mission(root / "mission", seed=seed)
+    use = list(bm.image_names) if names is None else list(names)
+    render_block(bm, names=use, supersample=2)
+    truth = block_cameras(bm, "truth", use)
+    rng = np.random.default_rng(seed + 1)
+    control = block_check_points(bm, n_control, sigma_px=sigma_px, seed=seed + 11, cameras=truth, names=use)
+    check = block_check_points(bm, n_check if n_check is not None else (12 if quick else 20), sigma_px=sigma_px,
+                               seed=seed + 12, cameras=truth, names=use)
+    net = merge_networks(_points_network(control, "control", "C", control_sigma, rng),
+                         _points_network(check, "check", "K"))
+    write_network(net, root / "points.nc")
+    man = bm.manifest
+    images = "\n".join(
+        f'[[images]]\nname = "{n}"\nlabel = "mission/{n}.lbl"\npixels = "mission/{n}.nc"\n'
+        f'group = "{man["images"][n]["orbit"]}-{man["images"][n]["kind"]}"\n' for n in use)
+    text = EXAMPLE_CONFIG.format(output=output, seed=seed, images=images, cell=64 if quick else 48)
+    path = root / "run.toml"
+    path.write_text(text)
+    return path

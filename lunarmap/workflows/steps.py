@@ -1,0 +1,379 @@
+"""The steps of a run: plain, picklable functions of their inputs that write their output into the store.
+
+Every step takes the :class:`~lunarmap.workflows.store.Store`, its key and its inputs (paths, upstream
+:class:`Done` records, parameters), returns a :class:`Done` record and does nothing when its output is
+already there. Upstream outputs travel as files, not as objects: a camera is always rebuilt from its
+stored ISD (:func:`lunarmap.camera_from_isd_file`, identical to the in-memory camera), so a step gives
+the same result whether its inputs were computed in this run, in an earlier one, or on another worker.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import xarray as xr
+
+from ..blas import single_threaded_blas
+from ..camera.geodesy import MOON_GEOGRAPHIC_CRS
+from ..errors import LunarmapError, WorkflowError
+from .store import Store
+
+__all__ = ["Done", "isd_step", "rpc_step", "detect_step", "match_step", "tiepoints_step", "adjust_step",
+           "kernels_step", "read_pixels", "provenance"]
+
+
+@dataclass(frozen=True)
+class Done:
+    """Record of a finished step: where its output is and whether this call computed it.
+
+    Attributes
+    ----------
+    step, key : str
+        Step name and output key.
+    item : str
+        The image, tile or pair it concerns (``""`` for whole-block steps).
+    path : str
+        Output file or folder.
+    computed : bool
+        False when the output was already in the store.
+    seconds : float
+        Wall time of this call.
+    note : str
+        A short remark (e.g. why a pair was skipped).
+    """
+
+    step: str
+    key: str
+    item: str
+    path: str
+    computed: bool
+    seconds: float = 0.0
+    note: str = ""
+
+
+def _one_blas_thread(fn: Callable[..., Done]) -> Callable[..., Done]:
+    """Run a step with one BLAS thread, as on dask workers: results do not depend on where a step ran."""
+    @functools.wraps(fn)
+    def wrapped(*args: Any, **kwargs: Any) -> Done:
+        with single_threaded_blas():
+            return fn(*args, **kwargs)
+    return wrapped
+
+
+def provenance(config_digest: str, kernels: Sequence[str] = ()) -> dict[str, Any]:
+    """Attributes recorded on every output Dataset: software version, configuration digest, kernels, time."""
+    from .. import __version__
+
+    return {"lunarmap_version": __version__, "config_sha256": config_digest,
+            "kernels": ";".join(str(k) for k in kernels),
+            "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+
+
+def _fail(step: str, item: str, err: Exception) -> WorkflowError:
+    kind = type(err).__name__
+    return WorkflowError(f"step {step} of {item or 'the block'} failed: {kind}: {err}")
+
+
+def read_pixels(path: str | Path) -> xr.DataArray:
+    """Image pixels as a ``(line, sample)`` DataArray (netCDF written by xarray, e.g. :func:`lunarmap.simulate.render_block`).
+
+    Raises
+    ------
+    WorkflowError
+        Unreadable file or a variable that is not 2-D.
+    """
+    p = Path(path)
+    try:
+        with xr.open_dataarray(p) as da:
+            da = da.load()
+    except (OSError, ValueError) as err:
+        raise WorkflowError(f"image {p} is not readable as a netCDF image: {err}") from None
+    if da.ndim != 2:
+        raise WorkflowError(f"image {p} must be 2-D (line, sample), got dims {da.dims}")
+    return da
+
+
+# -- per image -------------------------------------------------------------------------------
+
+@_one_blas_thread
+def isd_step(store: Store, key: str, name: str, label: str, metakernel: str) -> Done:
+    """Image support data of one image (one SPICE pass), written as ISD JSON."""
+    t = time.perf_counter()
+    if store.has("isd", key, "json"):
+        return Done("isd", key, name, str(store.path("isd", key, "json")), False)
+    from ..orientation.drivers import image_support
+
+    try:
+        isd = image_support(label, metakernel)
+    except LunarmapError as err:
+        raise _fail("isd", name, err) from None
+    path = store.write("isd", key, "json", lambda tmp: isd.write_json(tmp))
+    return Done("isd", key, name, str(path), True, time.perf_counter() - t)
+
+
+def _camera(isd: Done) -> Any:
+    from ..camera.factory import camera_from_isd_file
+
+    return camera_from_isd_file(isd.path)
+
+
+@_one_blas_thread
+def rpc_step(store: Store, key: str, isd: Done, height_range: tuple[float, float]) -> Done:
+    """The cubic RFM of an image's camera, with its independent check report (netCDF)."""
+    t = time.perf_counter()
+    if store.has("rpc", key, "nc"):
+        return Done("rpc", key, isd.item, str(store.path("rpc", key, "nc")), False)
+    from ..rpc import fit_rpc, write_netcdf
+
+    try:
+        fit = fit_rpc(_camera(isd), tuple(height_range))
+    except LunarmapError as err:
+        raise _fail("rpc", isd.item, err) from None
+    path = store.write("rpc", key, "nc", lambda tmp: write_netcdf(fit.model, tmp))
+    return Done("rpc", key, isd.item, str(path), True, time.perf_counter() - t,
+                note=f"check RMS {fit.check.rms:.2e} px")
+
+
+@_one_blas_thread
+def detect_step(store: Store, key: str, name: str, pixels: str, core: tuple[int, int, int, int],
+                padded: tuple[int, int, int, int], params: Any, saturation: float | None) -> Done:
+    """Förstner interest points of one tile (``.npz``)."""
+    t = time.perf_counter()
+    item = f"{name} tile {core[0]}:{core[1]},{core[2]}:{core[3]}"
+    if store.has("detect", key, "npz"):
+        return Done("detect", key, item, str(store.path("detect", key, "npz")), False)
+    import warnings
+
+    from ..matching.tiepoints import detect_tile
+
+    window = read_pixels(pixels).values[padded[0]:padded[1], padded[2]:padded[3]]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")          # blank tiles are expected at rolled images' edges
+        pts = detect_tile(window, core, padded, params, saturation, name)
+    path = store.write("detect", key, "npz", lambda tmp: _savez(tmp, line=pts.line, sample=pts.sample,
+                                                                  strength=pts.strength))
+    return Done("detect", key, item, str(path), True, time.perf_counter() - t)
+
+
+def _savez(path: Path, **arrays: Any) -> None:
+    with open(path, "wb") as fh:
+        np.savez(fh, **arrays)
+
+
+def _load_points(tiles: Sequence[Done]) -> Any:
+    from ..matching.interest import InterestPoints
+    from ..matching.tiepoints import merge_points
+
+    parts = []
+    for d in tiles:
+        with np.load(d.path) as z:
+            parts.append(InterestPoints(z["line"], z["sample"], z["strength"]))
+    return merge_points(parts)
+
+
+def _overlap(cam_a: Any, cam_b: Any, height: float) -> float:
+    """Fraction of an 11 x 11 grid of image ``a`` (at ``height`` metres) that image ``b`` sees."""
+    L, S = np.meshgrid(np.linspace(0.5, cam_a.n_lines - 0.5, 11), np.linspace(0.5, cam_a.n_samples - 0.5, 11),
+                       indexing="ij")
+    g = cam_a.image_to_ground(L.ravel(), S.ravel(), height=height, on_miss="nan")
+    ok = np.all(np.isfinite(g), axis=1)
+    if not ok.any():
+        return 0.0
+    li, sa = cam_b.ground_to_image(g[ok], on_miss="nan")
+    return float(np.count_nonzero(np.isfinite(li) & np.isfinite(sa))) / L.size
+
+
+@_one_blas_thread
+def match_step(store: Store, key: str, pair: tuple[str, str], pixels: tuple[str, str], isds: tuple[Done, Done],
+               tiles: Sequence[Done], dtm: str | None, params: Any, min_overlap: float) -> Done:
+    """Matches of one image pair (prediction, pyramid NCC, LSM, RANSAC), or a skip when they do not overlap."""
+    t = time.perf_counter()
+    item = f"{pair[0]} -> {pair[1]}"
+    if store.has("match", key, "npz"):
+        path = store.path("match", key, "npz")
+        with np.load(path) as z:
+            note = str(z["note"])
+        return Done("match", key, item, str(path), False, note=note)
+    import warnings
+
+    from ..matching.pairs import as_array
+    from ..matching.tiepoints import match_pair
+
+    cam_a, cam_b = _camera(isds[0]), _camera(isds[1])
+    height: Any = 0.0
+    if dtm is not None:
+        height = read_pixels(dtm)
+    mean_h = float(np.nanmean(height.values)) if isinstance(height, xr.DataArray) else float(height)
+    frac = _overlap(cam_a, cam_b, mean_h)
+    if frac < min_overlap:
+        note = f"skipped: {frac:.0%} of {pair[0]} is seen by {pair[1]} (< {min_overlap:.0%})"
+        path = store.write("match", key, "npz", lambda tmp: _savez(tmp, note=np.array(note), n=np.array(0)))
+        return Done("match", key, item, str(path), True, time.perf_counter() - t, note)
+    sat = params.match.saturation
+    img_a = as_array(read_pixels(pixels[0]), pair[0], sat)
+    img_b = as_array(read_pixels(pixels[1]), pair[1], sat)
+    points = _load_points(tiles)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            m = match_pair(img_a, img_b, cam_a, cam_b, points, height, params, item)
+    except LunarmapError as err:
+        raise _fail("match", item, err) from None
+    ok = m.ok
+    note = f"{int(ok.sum())}/{ok.size} matched ({frac:.0%} overlap)"
+    arrays = {"line1": m.line1[ok], "sample1": m.sample1[ok], "line2": m.line2[ok], "sample2": m.sample2[ok],
+              "sigma_line": m.sigma_line[ok], "sigma_sample": m.sigma_sample[ok],
+              "correlation": m.correlation[ok], "index": np.flatnonzero(ok), "n_points": np.array(ok.size),
+              "note": np.array(note), "n": np.array(int(ok.sum()))}
+    path = store.write("match", key, "npz", lambda tmp: _savez(tmp, **arrays))
+    return Done("match", key, item, str(path), True, time.perf_counter() - t, note)
+
+
+@_one_blas_thread
+def tiepoints_step(store: Store, key: str, names: Sequence[str], pairs: Sequence[tuple[str, str]],
+                   matches: Sequence[Done], track_tol: float, attrs: dict[str, Any]) -> Done:
+    """Multi-image tracks of all pairs' matches: the tie-point table (netCDF)."""
+    t = time.perf_counter()
+    if store.has("tiepoints", key, "nc"):
+        return Done("tiepoints", key, "", str(store.path("tiepoints", key, "nc")), False)
+    from ..matching.pairs import STATUS, PairMatches
+    from ..matching.predict import Prediction
+    from ..matching.tiepoints import assemble_tiepoints, write_tiepoints
+
+    index = {n: k for k, n in enumerate(names)}
+    results = []
+    for (a, b), d in zip(pairs, matches):
+        with np.load(d.path) as z:
+            if int(z["n"]) == 0:
+                continue
+            n_pts = int(z["n_points"])
+            full = {k: np.full(n_pts, np.nan) for k in ("line1", "sample1", "line2", "sample2", "sigma_line",
+                                                         "sigma_sample", "correlation")}
+            idx = z["index"]
+            for k in full:
+                full[k][idx] = z[k]
+            status = np.full(n_pts, STATUS["ncc_failed"], dtype=np.int8)
+            status[idx] = STATUS["ok"]
+        nan = np.full(n_pts, np.nan)
+        pred = Prediction(nan, nan, np.full((n_pts, 2, 2), np.nan), np.full((n_pts, 2), np.nan), nan)
+        m = PairMatches(full["line1"], full["sample1"], full["line2"], full["sample2"], full["sigma_line"],
+                        full["sigma_sample"], full["correlation"], status, pred,
+                        {"n_points": n_pts, "n_ok": int(idx.size)})
+        results.append((index[a], index[b], m))
+    if not results:
+        raise WorkflowError("tie points: no image pair overlaps (every pair was skipped or matched nothing)")
+    ds = assemble_tiepoints(results, list(names), track_tol)
+    ds.attrs.update(attrs)
+    path = store.write("tiepoints", key, "nc", lambda tmp: write_tiepoints(ds, tmp))
+    return Done("tiepoints", key, "", str(path), True, time.perf_counter() - t,
+                note=f"{int(np.unique(ds['point_id'].values).size)} points, {ds.sizes['observation']} observations")
+
+
+# -- the block -------------------------------------------------------------------------------
+
+@_one_blas_thread
+def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[str], isds: Sequence[Done],
+                ties: Done, points: str | None, degree: int, navigation: dict[str, Any] | None,
+                estimate_tie_variance: bool, ftol: float, attrs: dict[str, Any]) -> Done:
+    """Adjust the block on the images' rigorous cameras; write the results as netCDF and adjusted ISDs."""
+    t = time.perf_counter()
+    if store.has("adjust", key):
+        return Done("adjust", key, "", str(store.path("adjust", key)), False)
+    from ..adjust import (NavigationSpec, SolverOptions, build_block, merge_networks, network_from_tiepoints,
+                          read_network)
+    from ..adjust.block import BlockResult
+    from ..adjust.export import adjusted_image_support
+    from ..adjust.variance import estimate_image_variances
+    from ..matching.tiepoints import read_tiepoints
+    from ..orientation.isd import ImageSupport
+
+    try:
+        cams = {n: _camera(d) for n, d in zip(names, isds)}
+        net = network_from_tiepoints(read_tiepoints(ties.path))
+        if points is not None:
+            net = merge_networks(net, read_network(points))
+        spec = None
+        if navigation is not None:
+            spec = NavigationSpec(orbit={n: g or n for n, g in zip(names, groups)}, **navigation)
+        block = build_block(cams, net, degree=degree, navigation=spec)
+        x0 = block.problem.points.copy()
+        opts = SolverOptions(ftol=ftol)
+        groups_obs = np.where(block.network.point_type[block.problem.obs.pt_idx] == "tie", 0, 1)
+        est = estimate_image_variances(block.problem, groups_obs, np.array([estimate_tie_variance, False]), opts,
+                                       rounds=5 if estimate_tie_variance else 1)
+        res = BlockResult(block, est.result)
+        adjusted_isds = adjusted_image_support(res, {n: ImageSupport.read_json(d.path) for n, d in zip(names, isds)})
+    except LunarmapError as err:
+        raise _fail("adjust", "", err) from None
+
+    summary = {"sigma0": res.sigma0, "iterations": int(res.result.iterations), "converged": bool(res.converged),
+               "message": res.result.message, "tie_sigma_scale": float(est.scale[0]),
+               "variance_factors": [h.tolist() for h in est.history], "images": list(names),
+               "n_points": int(block.problem.n_points), "n_observations": int(block.problem.obs.n),
+               "groups": {k: list(v) for k, v in res.result.group_quadratic_forms().items()},
+               "rms_px": res.result.rms_px(), "solve_seconds": float(res.result.solve_seconds)}
+    has_check = bool(np.any(block.network.point_type == "check"))
+
+    def write(folder: Path) -> None:
+        geo = {"crs": MOON_GEOGRAPHIC_CRS, **attrs}
+        corr = res.corrections()
+        corr.attrs.update(attrs)
+        corr.to_netcdf(folder / "corrections.nc")
+        pts = res.points()
+        pts.attrs.update(geo)
+        pts["lon"].attrs["standard_name"], pts["lat"].attrs["standard_name"] = "longitude", "latitude"
+        pts.to_netcdf(folder / "points.nc")
+        resid = res.result.residuals_dataset()
+        resid["image_name"] = ("obs", np.asarray(names, dtype=object)[resid["image"].values])
+        resid["point_type"] = ("obs", block.network.point_type[resid["point"].values].astype(object))
+        resid.attrs.update(attrs)
+        resid.to_netcdf(folder / "residuals.nc")
+        if has_check:
+            before, after = res.check_points(x0), res.check_points()
+            ds = xr.Dataset({"error_before": before["error"], "error_after": after["error"],
+                             "sigma_after": after["sigma"], "normalized_after": after["normalized"]},
+                            attrs={**geo, "rms_before_m": before.attrs["rms_m"], "rms_after_m": after.attrs["rms_m"],
+                                   "normalized_rms": after.attrs["normalized_rms"]})
+            ds.to_netcdf(folder / "check_points.nc")
+            summary["check_rms_before_m"] = np.asarray(before.attrs["rms_m"]).tolist()
+            summary["check_rms_after_m"] = np.asarray(after.attrs["rms_m"]).tolist()
+            summary["check_sigma_after_m"] = np.sqrt(np.mean(after["sigma"].values ** 2, axis=0)).tolist()
+            summary["check_normalized_rms"] = float(after.attrs["normalized_rms"])
+        for n, isd in adjusted_isds.items():
+            isd.write_json(folder / f"{n}.adjusted.json")
+        (folder / "summary.json").write_text(json.dumps(summary, indent=1))
+
+    path = store.write_dir("adjust", key, write)
+    return Done("adjust", key, "", str(path), True, time.perf_counter() - t,
+                note=f"sigma0 {summary['sigma0']:.3f}")
+
+
+@_one_blas_thread
+def kernels_step(store: Store, key: str, names: Sequence[str], adjusted: Done, isds: Sequence[Done],
+                 metakernel: str) -> Done:
+    """The adjusted orientation as SPK + CK + a meta-kernel layered over the run's kernels."""
+    t = time.perf_counter()
+    folder = store.path("kernels", key)
+    if (folder / "adjusted.tm").exists():
+        return Done("kernels", key, "", str(folder / "adjusted.tm"), False)
+    from ..orientation.isd import ImageSupport
+    from ..orientation.kernels import write_orientation_kernels
+
+    folder.mkdir(parents=True, exist_ok=True)
+    isd_list = [ImageSupport.read_json(Path(adjusted.path) / f"{n}.adjusted.json") for n in names]
+    try:
+        mk = write_orientation_kernels(isd_list, folder, metakernel, name="adjusted")
+    except LunarmapError as err:
+        raise _fail("kernels", "", err) from None
+    return Done("kernels", key, "", str(mk), True, time.perf_counter() - t)
+
+
+def as_dict(done: Done) -> dict[str, Any]:
+    """A record as plain data (for the run's log and summary)."""
+    return asdict(done)

@@ -1,0 +1,247 @@
+"""``lunarmap run``: configuration validation, the chain as one dask graph on a small rendered block,
+resumption, identical results serially / on a local cluster / on a separately started scheduler, a
+worker killed mid-run, bad inputs."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from lunarmap.errors import ConfigError, LunarmapError, MissingKernelError, WorkflowError
+from lunarmap.workflows import load_config, run, write_example
+
+NAMES = ["orbit1_nac", "orbit2_nac", "orbit3_nac", "orbit2_frame_a"]
+
+
+@pytest.fixture(scope="module")
+def example(tmp_path_factory) -> Path:
+    """A 4-image block (3 orbits, NAC-like and frame cameras) rendered once: its run.toml."""
+    folder = tmp_path_factory.mktemp("run_example")
+    return write_example(folder, quick=True, names=NAMES, n_control=4, n_check=8)
+
+
+def _config(example: Path, output: str, **replace: str) -> Path:
+    text = example.read_text().replace('output = "run"', f'output = "{output}"')
+    for old, new in replace.items():
+        assert old in text, old
+        text = text.replace(old, new)
+    path = example.parent / f"{output}.toml"
+    path.write_text(text)
+    return path
+
+
+def _points(result) -> np.ndarray:
+    with xr.open_dataset(result.outputs["adjustment"] / "points.nc") as ds:
+        return ds["xyz"].values.copy()
+
+
+@pytest.fixture(scope="module")
+def serial(example):
+    return run(_config(example, "serial"), scheduler="sync")
+
+
+def test_serial_run_adjusts_the_block(serial):
+    s = serial.summary
+    assert serial.counts()["match"] == (6, 0) and serial.computed == sum(c for c, _ in serial.counts().values())
+    assert abs(s["sigma0"] - 1.0) < 0.1 and s["converged"]
+    before, after = np.array(s["check_rms_before_m"]), np.array(s["check_rms_after_m"])
+    assert np.sqrt(np.sum(before ** 2)) > 10 * np.sqrt(np.sum(after ** 2))
+    assert 0.5 < s["check_normalized_rms"] < 1.5          # 8 check points x 3: a loose band
+    out = serial.outputs
+    for p in (out["tiepoints"], out["metakernel"], out["adjustment"] / "points.nc",
+              out["adjustment"] / "orbit1_nac.adjusted.json", out["rpc"] / "orbit1_nac_RPC.TXT",
+              serial.folder / "run.log", serial.folder / "steps.json"):
+        assert Path(p).is_file(), p
+    with xr.open_dataset(out["adjustment"] / "points.nc") as ds:
+        assert ds.attrs["crs"] == "IAU_2015:30100" and ds.attrs["config_sha256"] == serial.config.digest()
+        assert ds.attrs["lunarmap_version"] and "navigation.tm" not in ds.attrs["kernels"]
+    html = serial.report.read_text()
+    assert html.count("data:image/png;base64,") == 4 and "sigma0" in html
+
+
+def test_rerun_reuses_everything_and_a_changed_parameter_reruns_only_what_depends_on_it(example, serial):
+    again = run(serial.config, scheduler="sync", report=False)
+    assert again.computed == 0
+    np.testing.assert_array_equal(_points(again), _points(serial))
+    changed = _config(example, "serial", **{"ftol = 1e-10": "ftol = 1e-9"})
+    res = run(changed, scheduler="sync", report=False)
+    counts = res.counts()
+    assert counts["adjust"] == (1, 0) and counts["kernels"] == (1, 0)
+    assert all(counts[s][0] == 0 for s in ("isd", "rpc", "detect", "match", "tiepoints"))
+
+
+def test_interrupted_run_resumes_with_only_the_unfinished_steps(example, monkeypatch):
+    import lunarmap.workflows.engine as run_mod
+
+    cfg = _config(example, "interrupted")
+    calls = {"n": 0}
+    real = run_mod.match_step
+
+    def interrupted(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 4:
+            raise KeyboardInterrupt("simulated Ctrl-C in the 4th pair")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(run_mod, "match_step", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run(cfg, scheduler="sync", report=False)
+    monkeypatch.undo()
+    store = Path(load_config(cfg).output) / "store"
+    stored = {s: len([p for p in (store / s).glob("*") if not p.name.startswith(".")]) if (store / s).is_dir() else 0
+              for s in ("isd", "rpc", "detect", "match", "tiepoints", "adjust")}
+    assert stored["match"] == 3 and stored["tiepoints"] == 0 and not list(store.rglob(".*"))   # nothing half-written
+    res = run(cfg, scheduler="sync", report=False)
+    counts = res.counts()
+    for stage, n_stored in stored.items():      # exactly the unfinished steps are computed
+        assert counts[stage][1] == n_stored, stage
+    assert counts["match"] == (3, 3) and counts["tiepoints"] == (1, 0) and counts["adjust"] == (1, 0)
+
+
+def test_local_cluster_gives_identical_results(example, serial):
+    res = run(_config(example, "cluster"), scheduler=None, workers=2, report=False)
+    a, b = _points(res), _points(serial)
+    assert np.max(np.abs(a - b) / np.abs(b).max()) <= 1e-9
+    assert res.summary["sigma0"] == pytest.approx(serial.summary["sigma0"], rel=1e-9)
+
+
+def _start_scheduler(tmp: Path) -> tuple[list[subprocess.Popen], str]:
+    sched_file = tmp / "scheduler.json"
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    bindir = Path(sys.executable).parent
+    procs = [subprocess.Popen([str(bindir / "dask"), "scheduler", "--host", "127.0.0.1", "--port", "0",
+                               "--dashboard-address", ":0", "--scheduler-file", str(sched_file)], env=env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    for _ in range(200):
+        if sched_file.exists() and sched_file.stat().st_size > 0:
+            break
+        time.sleep(0.1)
+    import json
+
+    address = json.loads(sched_file.read_text())["address"]
+    for _ in range(2):
+        procs.append(subprocess.Popen([str(bindir / "dask"), "worker", address, "--nthreads", "1",
+                                       "--nworkers", "1", "--no-dashboard"], env=env,
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+    from distributed import Client
+
+    with Client(address, timeout="20s") as c:
+        c.wait_for_workers(2, timeout=60)
+    return procs, address
+
+
+def test_separately_started_scheduler_gives_identical_results(example, serial, tmp_path):
+    procs, address = _start_scheduler(tmp_path)
+    try:
+        res = run(_config(example, "external"), scheduler=address, report=False)
+    finally:
+        for p in procs[::-1]:
+            p.send_signal(signal.SIGINT)
+        for p in procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+    a, b = _points(res), _points(serial)
+    assert np.max(np.abs(a - b) / np.abs(b).max()) <= 1e-9
+
+
+def test_a_worker_killed_mid_run_does_not_change_the_results(example, serial):
+    """One of two worker processes is killed once the first match tasks have finished; the nanny restarts
+    it, its tasks are rerun, the results are those of the serial run."""
+    from distributed import Client, LocalCluster
+
+    import dask
+
+    from lunarmap.matching import WORKER_ENVIRON
+
+    cfg = _config(example, "killed")
+    store = Path(load_config(cfg).output) / "store"
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": WORKER_ENVIRON}):
+        cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0")
+    client = Client(cluster)
+    killed = {}
+
+    def killer():
+        deadline = time.time() + 300
+        while time.time() < deadline:
+            if (store / "match").is_dir() and len(list((store / "match").glob("*.npz"))) >= 1:
+                pids = client.run(os.getpid)
+                victim = sorted(pids.values())[0]
+                os.kill(victim, signal.SIGKILL)
+                killed["pid"] = victim
+                killed["matches_done"] = len(list((store / "match").glob("*.npz")))
+                return
+            time.sleep(0.05)
+
+    t = threading.Thread(target=killer)
+    t.start()
+    try:
+        res = run(cfg, scheduler=client, report=False)
+    finally:
+        t.join()
+        client.close()
+        cluster.close()
+    assert killed and killed["matches_done"] < 6          # the kill happened mid-graph
+    a, b = _points(res), _points(serial)
+    assert np.max(np.abs(a - b) / np.abs(b).max()) <= 1e-9
+
+
+def test_bad_configurations_are_named(example, tmp_path):
+    base = example.read_text()
+    cases = [
+        (base.replace("[report]", "[reprot]"), "unknown section \\[reprot\\]"),
+        (base.replace("degree = 1", "degree = 1\npolynomial = 2"), "unknown key adjust.polynomial"),
+        (base.replace("cell = 64", 'cell = "64"'), "tiepoints.cell must be an integer"),
+        (base.replace('metakernel = "mission/navigation.tm"', 'metakernel = "mission/nothere.tm"'),
+         "kernels.metakernel.*does not exist"),
+        (base.replace('pixels = "mission/orbit1_nac.nc"', 'pixels = "mission/missing.nc"'),
+         "images\\[0\\].pixels.*does not exist"),
+        (base.replace('offset = "observed"', 'offset = "sometimes"'), "adjust.navigation.offset must be one of"),
+        (base.replace("[run]", "[run"), "not valid TOML"),
+    ]
+    for k, (text, match) in enumerate(cases):
+        p = example.parent / f"bad{k}.toml"
+        p.write_text(text)
+        with pytest.raises(ConfigError, match=match) as err:
+            run(p, scheduler="sync")
+        assert p.name in str(err.value)                # the file is named
+
+
+def test_bad_inputs_fail_early_with_named_errors(example, tmp_path):
+    # an unreadable image: found while building the graph, before any step runs
+    folder = example.parent
+    bad = folder / "mission" / "broken.nc"
+    bad.write_bytes(b"not a netCDF file")
+    cfg = _config(example, "badimage", **{'pixels = "mission/orbit1_nac.nc"': 'pixels = "mission/broken.nc"'})
+    with pytest.raises(ConfigError, match="broken.nc are not a readable netCDF image"):
+        run(cfg, scheduler="sync")
+    assert not (folder / "badimage" / "store").exists() or not any((folder / "badimage" / "store").rglob("*.*"))
+    # a meta-kernel naming a kernel that is not there: MissingKernelError before any step
+    mk = folder / "mission" / "navigation.tm"
+    broken_mk = folder / "mission" / "broken.tm"
+    broken_mk.write_text(mk.read_text().replace("block_navigation.bc", "block_navigation_gone.bc"))
+    cfg = _config(example, "badkernel", **{'metakernel = "mission/navigation.tm"': 'metakernel = "mission/broken.tm"'})
+    with pytest.raises(MissingKernelError, match="block_navigation_gone.bc"):
+        run(cfg, scheduler="sync")
+    assert issubclass(MissingKernelError, LunarmapError)
+
+
+def test_images_without_overlap_are_reported_and_skipped(example):
+    """Every pair is skipped when the overlap threshold cannot be met: a named error, not a traceback."""
+    cfg = _config(example, "nooverlap", **{"min_overlap = 0.05": "min_overlap = 0.999"})
+    with pytest.raises(WorkflowError, match="no image pair overlaps"):
+        run(cfg, scheduler="sync", report=False)
+    steps = (example.parent / "nooverlap" / "store" / "match")
+    notes = [np.load(p)["note"].item() for p in steps.glob("*.npz")]
+    assert len(notes) == 6 and all(n.startswith("skipped") for n in notes)
