@@ -14,13 +14,10 @@ import html
 import io
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import xarray as xr
-
-if TYPE_CHECKING:
-    from .engine import RunResult
 
 __all__ = ["write_report"]
 
@@ -42,7 +39,7 @@ def _figure(draw: Any, width: float = 6.4, height: float = 4.2) -> bytes:
     return buf.getvalue()
 
 
-def _footprints(result: "RunResult") -> dict[str, np.ndarray]:
+def _footprints(result: Any) -> dict[str, np.ndarray]:
     from ..camera.factory import camera_from_isd_file
     from ..camera.geodesy import xyz_to_lonlat_height
 
@@ -58,7 +55,7 @@ def _footprints(result: "RunResult") -> dict[str, np.ndarray]:
     return out
 
 
-def write_report(result: "RunResult") -> Path:
+def write_report(result: Any) -> Path:
     """Write ``<run>/report/index.html`` (and its PNGs); returns the HTML path."""
     folder = result.folder / "report"
     folder.mkdir(parents=True, exist_ok=True)
