@@ -80,14 +80,27 @@ def _fail(step: str, item: str, err: Exception) -> WorkflowError:
     return WorkflowError(f"step {step} of {item or 'the block'} failed: {kind}: {err}")
 
 
+def _stamp(path: str | Path) -> tuple[str, int, int]:
+    st = Path(path).stat()
+    return str(path), st.st_size, st.st_mtime_ns
+
+
 def read_pixels(path: str | Path) -> xr.DataArray:
     """Image pixels as a ``(line, sample)`` DataArray (netCDF written by xarray, e.g. :func:`lunarmap.simulate.render_block`).
+
+    Read once per process (cached by path, size and modification time: a worker that matches an image
+    in many pairs reads it once).
 
     Raises
     ------
     WorkflowError
         Unreadable file or a variable that is not 2-D.
     """
+    return _read_pixels(*_stamp(path))
+
+
+@functools.lru_cache(maxsize=64)
+def _read_pixels(path: str, size: int, mtime: int) -> xr.DataArray:
     p = Path(path)
     try:
         with xr.open_dataarray(p) as da:
@@ -118,9 +131,15 @@ def isd_step(store: Store, key: str, name: str, label: str, metakernel: str) -> 
 
 
 def _camera(isd: Done) -> Any:
+    """The camera of a stored ISD (cached per process: a camera is immutable and used by many pairs)."""
+    return _camera_of(*_stamp(isd.path))
+
+
+@functools.lru_cache(maxsize=256)
+def _camera_of(path: str, size: int, mtime: int) -> Any:
     from ..camera.factory import camera_from_isd_file
 
-    return camera_from_isd_file(isd.path)
+    return camera_from_isd_file(path)
 
 
 @_one_blas_thread

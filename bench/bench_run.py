@@ -1,0 +1,183 @@
+#!/usr/bin/env python3
+"""``lunarmap run`` on the embedded example: stage times, 2 workers vs serial, orchestration overhead.
+
+In one invocation, on the same example data (``lunarmap.workflows.write_example``, written once):
+
+* ``direct``: the same steps called directly in one process, without dask and without the store
+  (image_support, fit_rpc, find_tiepoints on the overlapping pairs, build_block + variance factors,
+  adjusted ISDs, write_orientation_kernels);
+* ``serial``: ``lunarmap.workflows.run(..., scheduler="sync")`` into a fresh run folder;
+* ``cluster``: ``run(..., workers=N)`` on a fresh ``LocalCluster`` of N processes, fresh run folder;
+* ``rerun``: the serial run again (everything reused).
+
+Rounds alternate the three fresh runs; medians are reported. Prints one table and appends a JSON line to
+``bench/results/run.jsonl``. Usage::
+
+    python bench/bench_run.py [--folder bench/data/run_example] [--sites 4] [--rounds 2] [--workers 2]
+        [--screenshot]      # also render the report in headless Chromium (needs /usr/bin/chromium)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import statistics
+import subprocess
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+
+
+def direct(cfg) -> dict:
+    """The chain by direct library calls in this process (no dask graph, no store)."""
+    import lunarmap
+    from lunarmap.adjust import NavigationSpec, SolverOptions, merge_networks, network_from_tiepoints, read_network
+    from lunarmap.adjust.block import BlockResult
+    from lunarmap.adjust.export import adjusted_image_support
+    from lunarmap.adjust.variance import estimate_image_variances
+    from lunarmap.blas import single_threaded_blas
+    from lunarmap.matching import DetectParams, MatchParams, TiePointParams
+    from lunarmap.orientation.kernels import write_orientation_kernels
+    from lunarmap.workflows.steps import _overlap, read_pixels
+
+    out = cfg.output / "direct"
+    shutil.rmtree(out, ignore_errors=True)
+    out.mkdir(parents=True)
+    t = {}
+    c = time.perf_counter()
+    with single_threaded_blas():
+        isds = {im.name: lunarmap.image_support(im.label, cfg.metakernel) for im in cfg.images}
+        cams = {n: lunarmap.camera_from_isd(isd) for n, isd in isds.items()}
+        t["isd"] = time.perf_counter() - c
+        c = time.perf_counter()
+        for cam in cams.values():
+            lunarmap.fit_rpc(cam, cfg.rpc_height_range)
+        t["rpc"] = time.perf_counter() - c
+        c = time.perf_counter()
+        images = {im.name: read_pixels(im.pixels) for im in cfg.images}
+        dtm = read_pixels(cfg.dtm) if cfg.dtm else 0.0
+        mean_h = float(np.nanmean(dtm.values)) if cfg.dtm else 0.0
+        names = [im.name for im in cfg.images]
+        pairs = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]
+                 if _overlap(cams[a], cams[b], mean_h) >= cfg.min_overlap]
+        params = TiePointParams(detect=DetectParams(cell=cfg.cell), match=MatchParams(search=cfg.search))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            ties = lunarmap.find_tiepoints(images, cams, pairs=pairs, height=dtm, params=params, scheduler="sync")
+        t["tie points"] = time.perf_counter() - c
+        c = time.perf_counter()
+        net = network_from_tiepoints(ties)
+        if cfg.points:
+            net = merge_networks(net, read_network(cfg.points))
+        n = cfg.navigation
+        spec = NavigationSpec(orbit={im.name: im.group or im.name for im in cfg.images}, position_sigma=n.position_sigma,
+                              attitude_sigma=n.attitude_sigma, position_rate_sigma=n.position_rate_sigma,
+                              attitude_rate_sigma=n.attitude_rate_sigma, offset=n.offset, drift=n.drift,
+                              offset_sigma=n.offset_sigma, drift_sigma=n.drift_sigma)
+        block = lunarmap.build_block(cams, net, degree=cfg.degree, navigation=spec)
+        groups = np.where(block.network.point_type[block.problem.obs.pt_idx] == "tie", 0, 1)
+        est = estimate_image_variances(block.problem, groups, np.array([True, False]), SolverOptions(ftol=cfg.ftol))
+        res = BlockResult(block, est.result)
+        adjusted = adjusted_image_support(res, isds)
+        t["adjust"] = time.perf_counter() - c
+        c = time.perf_counter()
+        write_orientation_kernels(list(adjusted.values()), out, cfg.metakernel, name="adjusted")
+        t["kernels"] = time.perf_counter() - c
+    t["total"] = sum(t.values())
+    t["sigma0"] = res.sigma0
+    return t
+
+
+def timed_run(cfg, scheduler, workers, name):
+    from lunarmap.workflows import run
+    from lunarmap.workflows.config import RunConfig
+
+    folder = cfg.output.parent / f"{cfg.output.name}_{name}"
+    shutil.rmtree(folder, ignore_errors=True)
+    c = RunConfig(**{**cfg.__dict__, "output": folder})
+    t = time.perf_counter()
+    res = run(c, scheduler=scheduler, workers=workers, report=False)
+    total = time.perf_counter() - t
+    return res, total
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--folder", default=str(HERE / "data" / "run_example"))
+    ap.add_argument("--sites", type=int, default=1)
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--screenshot", action="store_true")
+    args = ap.parse_args()
+    from lunarmap.workflows import load_config, write_example
+
+    folder = Path(args.folder)
+    toml = folder / "run.toml"
+    if not toml.exists():
+        kw = {"sites": args.sites} if args.sites != 1 else {}
+        c = time.perf_counter()
+        write_example(folder, **kw)
+        print(f"example written in {time.perf_counter() - c:.1f} s")
+    cfg = load_config(toml)
+    print(f"{len(cfg.images)} images; load average {os.getloadavg()[0]:.2f}")
+    rows: dict[str, list] = {"direct": [], "serial": [], "cluster": []}
+    stages: dict[str, list] = {"serial": [], "cluster": []}
+    sigma0 = {}
+    for r in range(args.rounds):
+        d = direct(cfg)
+        rows["direct"].append(d["total"])
+        sigma0["direct"] = d["sigma0"]
+        res, tot = timed_run(cfg, "sync", 1, "serial")
+        rows["serial"].append(tot)
+        stages["serial"].append(res.stage_seconds)
+        sigma0["serial"] = res.summary["sigma0"]
+        res_c, tot_c = timed_run(cfg, None, args.workers, "cluster")
+        rows["cluster"].append(tot_c)
+        stages["cluster"].append(res_c.stage_seconds)
+        sigma0["cluster"] = res_c.summary["sigma0"]
+        print(f"round {r + 1}: direct {d['total']:.1f} s, serial {tot:.1f} s, {args.workers} workers {tot_c:.1f} s "
+              f"(load {os.getloadavg()[0]:.2f})")
+    from lunarmap.workflows import run
+
+    c = time.perf_counter()
+    again = run(load_config(toml).__class__(**{**cfg.__dict__, "output": cfg.output.parent / f"{cfg.output.name}_serial"}),
+                scheduler="sync", report=True)
+    t_rerun = time.perf_counter() - c
+    med = {k: statistics.median(v) for k, v in rows.items()}
+    print(f"\n{'':24}{'seconds':>9}")
+    for k, v in med.items():
+        print(f"{k:24}{v:9.1f}")
+    print(f"{'rerun (all reused)':24}{t_rerun:9.1f}   steps computed: {again.computed}")
+    print(f"orchestration overhead (serial / direct - 1): {med['serial'] / med['direct'] - 1:+.1%}")
+    print(f"{args.workers} workers vs serial: {med['serial'] / med['cluster']:.2f}x")
+    print("stage end times, serial (s):", {k: round(v, 1) for k, v in stages["serial"][-1].items()})
+    print("stage end times, cluster (s):", {k: round(v, 1) for k, v in stages["cluster"][-1].items()})
+    print("sigma0:", {k: round(v, 10) for k, v in sigma0.items()})
+    shot = None
+    if args.screenshot and again.report is not None:
+        png = again.report.with_name("screenshot.png")
+        cmd = ["/usr/bin/chromium", "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+               "--disable-background-networking", "--disable-component-update", "--disable-sync",
+               f"--user-data-dir={folder / '.chromium'}", f"--screenshot={png}", "--window-size=1000,3200",
+               again.report.as_uri()]
+        subprocess.run(cmd, check=True, timeout=120, capture_output=True)
+        shot = str(png)
+        print(f"report screenshot: {png}")
+    (HERE / "results").mkdir(exist_ok=True)
+    with open(HERE / "results" / "run.jsonl", "a") as fh:
+        fh.write(json.dumps({"date": time.strftime("%Y-%m-%d %H:%M"), "machine": platform.node(),
+                             "images": len(cfg.images), "workers": args.workers, "rounds": args.rounds,
+                             "median_s": med, "rerun_s": t_rerun, "load": os.getloadavg()[0],
+                             "stages_serial": stages["serial"][-1], "stages_cluster": stages["cluster"][-1],
+                             "screenshot": shot}) + "\n")
+
+
+if __name__ == "__main__":
+    main()
