@@ -244,3 +244,29 @@ class TrajectoryFitError(OrientationKernelError, ConvergenceError):
 
 class BlockMissionError(InvalidInputError, FileNotFoundError):
     """A synthetic block-mission folder is missing, incomplete or does not match its manifest."""
+
+
+# -- evaluation and planning (lunarmap.evaluate, issue 12) ---------------------------------------
+
+class EvaluationError(LunarmapError):
+    """Base class of the errors of :mod:`lunarmap.evaluate`."""
+
+
+class EvaluationInputError(EvaluationError, InvalidInputError):
+    """Bad input to an evaluation: a single image where a pair is needed, unknown image names, bad arrays."""
+
+
+class NoOverlapError(EvaluationError, GeometryError):
+    """Two images (named) have no common ground coverage."""
+
+
+class CheckPointError(EvaluationInputError):
+    """Check points that cannot be evaluated (named): outside the images, too few rays, no reference."""
+
+
+class MissingDependencyError(LunarmapError, ImportError):
+    """An optional dependency (named, with the extra that installs it) is not installed."""
+
+
+__all__ += ["EvaluationError", "EvaluationInputError", "NoOverlapError", "CheckPointError",
+            "MissingDependencyError"]

@@ -1,0 +1,1 @@
+"""Evaluation and planning (placeholder, filled below)."""
