@@ -21,7 +21,7 @@ from .combinations import (best_combinations, combination_name, compare_with_exh
 from .footprint import Footprint, Overlap, footprint, laea_forward, laea_inverse, overlap, polygon_area
 from .geometry import (ViewGeometry, image_centre_point, image_geometry, pair_geometry, parallax_height_ratio,
                        shadow_tip_distance, view_geometry)
-from .theory import (NAC_MATCHING_ERROR, MatchingErrorModel, eq15_precision, fit_matching_error,
+from .theory import (NAC_MATCHING_ERROR, MatchingErrorModel, eq15_precision, fit_matching_error, pair_precision,
                      simulate_matching_errors)
 
 __all__ = [
@@ -33,4 +33,5 @@ __all__ = [
     "site_network", "subset_network", "combination_name", "evaluate_combination", "evaluate_combinations",
     "progressive_selection", "compare_with_exhaustive", "best_combinations",
     "NAC_MATCHING_ERROR", "MatchingErrorModel", "eq15_precision", "fit_matching_error", "simulate_matching_errors",
+    "pair_precision",
 ]

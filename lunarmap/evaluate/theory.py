@@ -16,7 +16,8 @@ itself is ``(H / cos(theta)) sigma / f``; intersecting two such rays at ``+-thet
 
 which reduce to the normal case (``sigma_Z = sqrt(2) (H/B)(H/f) sigma_x``) as ``theta -> 0``. For a
 push-broom camera the along-track pixel is set by the scan (ground speed x line time), not by the
-look angle, so ``sigma_Y = H sigma_y / (sqrt(2) f)`` (``along="linescan"``).
+look angle, so ``sigma_Y = p sigma_y / sqrt(2)`` with ``p`` the along-track ground pixel (``H / f``
+for square pixels at nadir; ``along="linescan"``).
 
 With a constant matching error ``sigma_Z`` falls as ``1 / sin(2 theta)`` (a power of the
 convergence) and ``sigma_T`` turns at a convergence of about 70 degrees; with the matching error
@@ -35,7 +36,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import EvaluationInputError
 
-__all__ = ["eq15_precision", "MatchingErrorModel", "fit_matching_error", "simulate_matching_errors",
+__all__ = ["eq15_precision", "pair_precision", "MatchingErrorModel", "fit_matching_error", "simulate_matching_errors",
            "NAC_MATCHING_ERROR"]
 
 Array = NDArray[np.float64]
@@ -94,7 +95,7 @@ def fit_matching_error(convergence_deg: ArrayLike, rms_px: ArrayLike, weights: A
 
 def eq15_precision(convergence_deg: ArrayLike, height_m: float, focal_px: float,
                    sigma_px: float | MatchingErrorModel = 0.3, sigma_along_px: float | None = None,
-                   along: str = "frame") -> xr.Dataset:
+                   along: str = "frame", along_pixel_m: float | None = None) -> xr.Dataset:
     """Standard deviations of a point intersected from a symmetric convergent pair (Eq. 15, module docstring).
 
     Parameters
@@ -112,6 +113,9 @@ def eq15_precision(convergence_deg: ArrayLike, height_m: float, focal_px: float,
         Along-track error, pixels (default: the same as across track).
     along : {"frame", "linescan"}
         Along-track pixel of a frame camera (grows with ``1 / cos(theta)``) or of a push-broom.
+    along_pixel_m : float, optional
+        Along-track ground pixel of a push-broom, metres (ground speed x line time); default
+        ``H / f`` (square pixels at nadir).
 
     Returns
     -------
@@ -131,7 +135,10 @@ def eq15_precision(convergence_deg: ArrayLike, height_m: float, focal_px: float,
     sy = sx if sigma_along_px is None else np.full_like(c, float(sigma_along_px))
     k = height_m / (np.sqrt(2.0) * focal_px)
     sig_x = k * sx / np.cos(th) ** 2
-    sig_y = k * sy / (np.cos(th) if along == "frame" else 1.0)
+    if along == "frame":
+        sig_y = k * sy / np.cos(th)
+    else:
+        sig_y = (k if along_pixel_m is None else float(along_pixel_m) / np.sqrt(2.0)) * sy
     sig_z = k * sx / (np.sin(th) * np.cos(th))
     sig_t = np.sqrt(sig_x ** 2 + sig_y ** 2 + sig_z ** 2)
     return xr.Dataset({"sigma_x": ("convergence", sig_x, {"units": "m", "long_name": "cross-track"}),
@@ -213,3 +220,75 @@ def simulate_matching_errors(convergence_deg: Sequence[float], kind: str = "line
                        "correlation": ("convergence", a[:, 4])},
                       coords={"convergence": ("convergence", np.asarray(convergence_deg, float), {"units": "degree"})},
                       attrs={"kind": kind, "noise_sigma": float(noise), "size": int(size), "seed": int(seed)})
+
+
+def pair_precision(convergence_deg: Sequence[float], kind: str = "frame", sigma_px: float | MatchingErrorModel = 0.3,
+                   altitude: float = 50e3, n_lines: int = 512, n_samples: int = 512) -> xr.Dataset:
+    """Eq. 15 beside the adjustment's propagated precision of the same symmetric pairs.
+
+    For each convergence a symmetric pair (:func:`~lunarmap.simulate.stereo_pair`) sees the point
+    at the image centres; the point's covariance is propagated from the image measurement sigma
+    through the rigorous cameras by the adjustment's forward intersection
+    (:func:`~lunarmap.adjust.intersect_points`, ``N^-1``), and rotated to cross-track, along-track
+    and height. Eq. 15 is evaluated with the same flying height and focal length (and, for the
+    push-broom, its along-track ground pixel).
+
+    Parameters
+    ----------
+    convergence_deg : sequence of float
+    kind : {"frame", "linescan"}
+        Clementine-like frame camera (f = 3907 px) or NAC-like push-broom (f = 99,946 px).
+    sigma_px : float or MatchingErrorModel
+        Measurement sigma per image coordinate, pixels (a model: its per-coordinate value at
+        each convergence, in both images).
+    altitude : float
+        Metres.
+    n_lines, n_samples : int
+        Push-broom image size.
+
+    Returns
+    -------
+    xarray.Dataset
+        Over ``convergence``: ``eq15_x``, ``eq15_y``, ``eq15_z``, ``eq15_t`` and ``adjust_x``,
+        ``adjust_y``, ``adjust_z``, ``adjust_t`` (metres; x cross-track, y along-track, z height) and
+        ``ratio_*`` = adjust / Eq. 15.
+    """
+    from ..adjust.intersection import intersect_points
+    from ..adjust.sensors import SensorImageModel
+    from ..simulate import stereo_pair
+    from .checkpoints import along_track_azimuth, track_basis
+
+    if kind not in ("frame", "linescan"):
+        raise EvaluationInputError(f"kind must be 'frame' or 'linescan', got {kind!r}")
+    conv = np.asarray(convergence_deg, float)
+    rows, pixels = [], []
+    focal_px = float("nan")
+    for c in conv:
+        kw: dict[str, Any] = dict(altitude=altitude)
+        if kind == "linescan":
+            kw.update(n_lines=n_lines, n_samples=n_samples)
+        cams = stereo_pair(kind, float(c), **kw)   # type: ignore[arg-type]
+        io = cams[0].interior
+        focal_px = io.focal_length / io.pixel_pitch
+        P = cams[0].image_to_ground(io.n_lines / 2.0, io.n_samples / 2.0, height=0.0)
+        model = SensorImageModel(list(cams), degree=0)
+        xy = np.array([np.ravel(cam.ground_to_image(P)) for cam in cams])
+        s = float(sigma_px.per_coordinate(c)) if isinstance(sigma_px, MatchingErrorModel) else float(sigma_px)
+        res = intersect_points(model, model.initial_params(), np.array([0, 1]), np.array([0, 0]), xy, s, n_pt=1)
+        if kind == "linescan":
+            from .geometry import view_geometry
+
+            pixels.append(float(view_geometry(cams[0], P).pixel_height))
+        T = track_basis(P, along_track_azimuth(list(cams), P) or 0.0)
+        C = T @ res.cov_apriori[0] @ T.T
+        sa, sx, sz = np.sqrt(np.diag(C))
+        rows.append((sx, sa, sz, float(np.sqrt(np.trace(C)))))
+    a = np.array(rows)
+    eq = eq15_precision(conv, altitude, focal_px, sigma_px, along=kind,
+                        along_pixel_m=float(np.mean(pixels)) if pixels else None)
+    ds = xr.Dataset({"eq15_x": eq.sigma_x, "eq15_y": eq.sigma_y, "eq15_z": eq.sigma_z, "eq15_t": eq.sigma_t},
+                    attrs={"kind": kind, "altitude_m": float(altitude), "focal_px": focal_px})
+    for j, n in enumerate("xyzt"):
+        ds[f"adjust_{n}"] = ("convergence", a[:, j], {"units": "m"})
+        ds[f"ratio_{n}"] = ds[f"adjust_{n}"] / ds[f"eq15_{n}"]
+    return ds
