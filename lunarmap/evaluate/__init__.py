@@ -21,6 +21,8 @@ from .combinations import (best_combinations, combination_name, compare_with_exh
 from .footprint import Footprint, Overlap, footprint, laea_forward, laea_inverse, overlap, polygon_area
 from .geometry import (ViewGeometry, image_centre_point, image_geometry, pair_geometry, parallax_height_ratio,
                        shadow_tip_distance, view_geometry)
+from .plots import (plot_error_vs_convergence, plot_footprints, plot_matching_error, plot_pair_quantity,
+                    plot_precision_vs_convergence, plot_precision_vs_images, power_law_fit, save_figure)
 from .theory import (NAC_MATCHING_ERROR, MatchingErrorModel, eq15_precision, fit_matching_error, pair_precision,
                      simulate_matching_errors)
 
@@ -34,4 +36,6 @@ __all__ = [
     "progressive_selection", "compare_with_exhaustive", "best_combinations",
     "NAC_MATCHING_ERROR", "MatchingErrorModel", "eq15_precision", "fit_matching_error", "simulate_matching_errors",
     "pair_precision",
+    "plot_error_vs_convergence", "plot_matching_error", "plot_precision_vs_convergence", "plot_pair_quantity",
+    "plot_precision_vs_images", "plot_footprints", "save_figure", "power_law_fit",
 ]
