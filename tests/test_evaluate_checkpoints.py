@@ -83,16 +83,21 @@ def _check_dataset(site, images=None) -> xr.Dataset:
                       coords={"image": net.image_id.astype(object), "point": net.point_id[chk].astype(object)})
 
 
-def test_triangulation_through_true_cameras_is_normalised(site):
-    meas = _check_dataset(site)
-    tri = triangulate(site.true_cameras, meas)
-    chk = np.flatnonzero(site.point_type == "check")
-    ds = check_point_errors(tri.xyz, site.true_xyz[chk], tri.covariance, names=tri.point_id,
-                            sensors=site.true_cameras)
-    print("triangulated check points: RMS", np.round(ds.attrs["rms"], 3), "expected",
-          np.round(ds.attrs["expected_rms"], 3), "normalised", round(ds.attrs["normalized_rms"], 2))
-    assert 0.5 < ds.attrs["normalized_rms"] < 1.6
-    assert tri.n_rays.min() == 3 and not tri.skipped
+def test_triangulation_through_true_cameras_is_normalised():
+    """Errors / predicted sigma of check points intersected through the true cameras, pooled over 6 sites."""
+    z = []
+    for seed in range(6):
+        s = lroc_site(APOLLO11_LIKE[:3], n_tie=5, n_control=0, n_check=40, sigma_px=0.2, seed=seed)
+        tri = triangulate(s.true_cameras, _check_dataset(s))
+        assert tri.n_rays.min() == 3 and not tri.skipped
+        chk = np.flatnonzero(s.point_type == "check")
+        ds = check_point_errors(tri.xyz, s.true_xyz[chk], tri.covariance, names=tri.point_id, sensors=s.true_cameras)
+        z.append(ds.normalized.values)
+    z = np.concatenate(z)
+    rms = np.sqrt(np.mean(z ** 2, axis=0))
+    print("triangulated check points, errors / sigma RMS along/cross/height", np.round(rms, 3),
+          "pooled", round(float(np.sqrt(np.mean(z ** 2))), 3))
+    assert np.all((rms > 0.8) & (rms < 1.2))
 
 
 def test_bad_input_outside_images_single_image_no_points(site):

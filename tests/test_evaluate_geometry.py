@@ -167,6 +167,10 @@ def test_symmetric_pair_closed_forms(conv):
     for k, v in errs.items():
         assert abs(v) <= RAD_TOL, (k, v)
     assert _one(gp.base_height) == pytest.approx(bh, rel=1e-9)
+    # Becker's parallax/height ratio: the sensors lie on opposite sides, so |tan(e) a1 - tan(e) a2| = 2 tan(e)
+    assert _one(gp.parallax_height_ratio) == pytest.approx(2 * np.tan(e), rel=1e-6)
+    assert np.radians(90.0 - _one(gp.bisector_elevation)) <= 1e-5     # the bisector is (nearly) vertical
+    assert _one(gp.aspect_ratio_ratio) == pytest.approx(1.0, abs=1e-9)   # mirror images: same pixels
     assert _one(ds.convergence) == pytest.approx(conv, abs=0.05)        # at the overlap centroid
     # scaled pixel height: the scene turns rigidly about the orbit normal at the orbit's angular rate
     w = np.sqrt(GM_MOON / r ** 3)
