@@ -54,6 +54,11 @@ __all__ = [
     "BlockMissionError",
     "ConfigError",
     "WorkflowError",
+    "EvaluationError",
+    "EvaluationInputError",
+    "NoOverlapError",
+    "CheckPointError",
+    "MissingDependencyError",
 ]
 
 
@@ -256,3 +261,26 @@ class ConfigError(LunarmapError, ValueError):
 
 class WorkflowError(LunarmapError):
     """A step of a run failed; the message names the step, the image or pair, and the cause."""
+
+
+# -- evaluation and planning (lunarmap.evaluate, issue 12) ---------------------------------------
+
+class EvaluationError(LunarmapError):
+    """Base class of the errors of :mod:`lunarmap.evaluate`."""
+
+
+class EvaluationInputError(EvaluationError, InvalidInputError):
+    """Bad input to an evaluation: a single image where a pair is needed, unknown image names, bad arrays."""
+
+
+class NoOverlapError(EvaluationError, GeometryError):
+    """Two images (named) have no common ground coverage."""
+
+
+class CheckPointError(EvaluationInputError):
+    """Check points that cannot be evaluated (named): outside the images, too few rays, no reference."""
+
+
+class MissingDependencyError(LunarmapError, ImportError):
+    """An optional dependency (named, with the extra that installs it) is not installed."""
+

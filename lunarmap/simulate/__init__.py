@@ -5,6 +5,7 @@ from .blocks import Measurements, SimulatedBlock, frame_block, linescan_site, lo
 from .mission import RenderedBlock, block_cameras, block_check_points, block_scene, render_block
 from .render import RenderSpec, render_image, surface_normals
 from .sampling import RasterSampler
+from .site import APOLLO11_LIKE, SimulatedSite, SiteImageSpec, lroc_site
 from .stereo import look_angle_for_emission, pointed_camera, stereo_pair
 from .terrain import (
     add_craters,
@@ -22,4 +23,5 @@ __all__ = [
     "look_angle_for_emission", "pointed_camera", "stereo_pair", "true_conjugates", "matching_errors",
     "Measurements", "SimulatedBlock", "frame_block", "linescan_site", "local_enu", "observe",
     "render_block", "RenderedBlock", "block_scene", "block_cameras", "block_check_points",
+    "lroc_site", "SimulatedSite", "SiteImageSpec", "APOLLO11_LIKE",
 ]
