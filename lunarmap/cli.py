@@ -85,7 +85,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     print(f"run folder {result.folder}: sigma0 {s['sigma0']:.4f}, {s['n_points']} points, "
           f"{s['n_observations']} observations; adjusted kernels {result.outputs['metakernel']}")
     if "check_rms_after_m" in s:
-        print("check points RMS east/north/up (m): before "
+        print("check points RMS along/cross/height (m): before "
               + " ".join(f"{v:.3f}" for v in s["check_rms_before_m"]) + ", after "
               + " ".join(f"{v:.3f}" for v in s["check_rms_after_m"])
               + f" (errors / posterior sigma: RMS {s['check_normalized_rms']:.2f})")

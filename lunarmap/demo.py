@@ -77,7 +77,7 @@ class DemoReport:
             f"  tie points from the matcher: {self.n_tie_points} points, {self.n_observations} image observations",
             f"  adjustment on the rigorous cameras: sigma0 {self.sigma0:.3f} (tie-point sigma x "
             f"{self.tie_sigma_scale:.2f} from variance-component estimation)",
-            "  check points vs truth, RMS east / north / up / 3-D (m):",
+            "  check points vs truth, RMS along-track / cross-track / height / 3-D (m):",
             f"    before (navigation): {b[0]:8.3f} {b[1]:8.3f} {b[2]:8.3f} {b3:8.3f}",
             f"    after (adjusted):    {a[0]:8.3f} {a[1]:8.3f} {a[2]:8.3f} {a3:8.3f}   ({b3 / a3:.0f}x smaller)",
             f"    posterior sigma:     {s[0]:8.3f} {s[1]:8.3f} {s[2]:8.3f} {s3:8.3f}   "

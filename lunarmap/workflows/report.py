@@ -113,7 +113,7 @@ def write_report(result: Any) -> Path:
             ax.bar(x, a, 0.27, label="after (adjusted)")
             ax.bar(x + 0.27, s, 0.27, label="posterior sigma")
             ax.set_yscale("log")
-            ax.set_xticks(x, ["east", "north", "up"])
+            ax.set_xticks(x, ["along-track", "cross-track", "height"])
             ax.set_ylabel("check-point RMS (m)")
             ax.set_title("check points against their reference coordinates")
             ax.legend(fontsize=7)
@@ -148,7 +148,7 @@ def write_report(result: Any) -> Path:
         ("sigma0", f"{summary.get('sigma0', float('nan')):.4f}"),
         ("tie-point sigma scale (variance components)", f"{summary.get('tie_sigma_scale', float('nan')):.3f}"),
         ("iterations", summary.get("iterations")), ("converged", summary.get("converged")),
-        ("check points RMS after, east/north/up (m)", summary.get("check_rms_after_m")),
+        ("check points RMS after, along/cross/height (m)", summary.get("check_rms_after_m")),
         ("check points RMS before (m)", summary.get("check_rms_before_m")),
         ("check points errors / posterior sigma (RMS)", summary.get("check_normalized_rms")),
         ("steps computed / reused", ", ".join(f"{s} {c}/{r}" for s, (c, r) in counts.items())),

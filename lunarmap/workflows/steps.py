@@ -354,16 +354,23 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
         resid.attrs.update(attrs)
         resid.to_netcdf(folder / "residuals.nc")
         if has_check:
-            before, after = res.check_points(x0), res.check_points()
+            from ..evaluate import block_check_errors
+
+            before, after = block_check_errors(res, x0), block_check_errors(res)
             ds = xr.Dataset({"error_before": before["error"], "error_after": after["error"],
-                             "sigma_after": after["sigma"], "normalized_after": after["normalized"]},
-                            attrs={**geo, "rms_before_m": before.attrs["rms_m"], "rms_after_m": after.attrs["rms_m"],
+                             "sigma_after": after["sigma"], "normalized_after": after["normalized"],
+                             "error_enu_before": before["error_enu"], "error_enu_after": after["error_enu"],
+                             "sigma_enu_after": after["sigma_enu"]},
+                            attrs={**geo, "components": "along-track, cross-track, height (m)",
+                                   "along_track_azimuth_deg": after.attrs["along_track_azimuth"],
+                                   "rms_before_m": before.attrs["rms"], "rms_after_m": after.attrs["rms"],
                                    "normalized_rms": after.attrs["normalized_rms"]})
             ds.to_netcdf(folder / "check_points.nc")
-            summary["check_rms_before_m"] = np.asarray(before.attrs["rms_m"]).tolist()
-            summary["check_rms_after_m"] = np.asarray(after.attrs["rms_m"]).tolist()
-            summary["check_sigma_after_m"] = np.sqrt(np.mean(after["sigma"].values ** 2, axis=0)).tolist()
+            summary["check_rms_before_m"] = np.asarray(before.attrs["rms"]).tolist()
+            summary["check_rms_after_m"] = np.asarray(after.attrs["rms"]).tolist()
+            summary["check_sigma_after_m"] = np.asarray(after.attrs["expected_rms"]).tolist()
             summary["check_normalized_rms"] = float(after.attrs["normalized_rms"])
+            summary["check_components"] = ["along-track", "cross-track", "height"]
         for n, isd in adjusted_isds.items():
             isd.write_json(folder / f"{n}.adjusted.json")
         (folder / "summary.json").write_text(json.dumps(summary, indent=1))
