@@ -90,7 +90,8 @@ def tilt_from_ranges(r: ArrayLike, range_: ArrayLike, radius: float) -> Array:
     # The angle opposite the side ``radius`` by Kahan's formula for needle-like triangles: the plain law
     # of cosines, arccos of a number near 1, loses half the digits of a small tilt.
     a, b, c = r, rg, radius              # a >= b: Range is shorter than the horizon distance < R
-    num = np.maximum(((a - b) + c) * (c - (a - b)), 0.0)
+    mu = np.where(b >= c, c - (a - b), b - (a - c))   # Range - altitude, formed without cancellation
+    num = np.maximum(((a - b) + c) * mu, 0.0)
     den = (a + (b + c)) * ((a - c) + b)
     return np.degrees(2.0 * np.arctan(np.sqrt(num / den)))
 
@@ -243,4 +244,10 @@ def orientation_angles(position: ArrayLike, sensor_rotation: ArrayLike, radius: 
     r1 = rab @ level
     azn = np.degrees(np.arctan2(r1[:, 1, 0], r1[:, 0, 0]))
     return {"LATs": lat_s, "LONs": lon_s, "LATp": lat_p, "LONp": lon_p, "R": r, "Range": rng, "Alt": r - radius,
-            "AZN": np.mod(azn, 360.0), "AZSC": np.mod(azsc, 360.0), "tilt": tilt}
+            "AZN": _azimuth(azn), "AZSC": _azimuth(azsc), "tilt": tilt}
+
+
+def _azimuth(a: Array) -> Array:
+    """Degrees in [0, 360) (``np.mod`` of a tiny negative angle gives 360)."""
+    m = np.mod(a, 360.0)
+    return np.where(m >= 360.0, m - 360.0, m)

@@ -256,9 +256,12 @@ class FlightParameters:
             A difference beyond its tolerance; the photo and the size are named.
         """
         ang = orientation_angles(self.positions, self.sensor_rotations(), self.radius)
-        a, b = np.radians(np.column_stack([self.LATp, self.LONp])), np.radians(np.column_stack([ang["LATp"], ang["LONp"]]))
-        cosd = np.sin(a[:, 0]) * np.sin(b[:, 0]) + np.cos(a[:, 0]) * np.cos(b[:, 0]) * np.cos(a[:, 1] - b[:, 1])
-        pp = np.degrees(np.arccos(np.clip(cosd, -1.0, 1.0)))
+        def unit(lat: NDArray[np.float64], lon: NDArray[np.float64]) -> NDArray[np.float64]:
+            la, lo = np.radians(lat), np.radians(lon)
+            return np.column_stack([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)])
+
+        u, v = unit(self.LATp, self.LONp), unit(ang["LATp"], ang["LONp"])
+        pp = np.degrees(np.arctan2(np.linalg.norm(np.cross(u, v), axis=1), np.einsum("ni,ni->n", u, v)))
         alt = self.Alt - (self.R - self.radius)
         where = f"flight parameters {self.source}".rstrip()
         i = self._first(pp > tolerance_deg)
