@@ -87,6 +87,9 @@ def test_lunar_orbiter_isd_follows_the_readme_conventions(lo):
     assert b["time_dependent_frames"] == [310002, 1] and b["constant_frames"] == [310001, 310003, 310000, 310002]
     assert quat_angle(b["quaternions"][0], q_body) <= 1e-3 * ARCSEC
     assert isd["naif_keywords"]["BODY_FRAME_CODE"] == 310001
+    print(f"Lunar Orbiter ISD vs spiceypy: time 0 s, position "
+          f"{np.abs(np.array(isd['instrument_position']['positions'][0]) - pos).max() * 1e6:.1e} mm, pointing "
+          f"{quat_angle(p['quaternions'][0], q_sc) / ARCSEC:.1e} arcsec, body {quat_angle(b['quaternions'][0], q_body) / ARCSEC:.1e} arcsec")
 
 
 def test_lunar_orbiter_fiducial_fit_equals_isis(lo):
@@ -131,6 +134,9 @@ def test_apollo_isd_follows_the_readme_conventions(apollo):
     assert b["time_dependent_frames"] == [31006, 1] and b["constant_frames"] == [31001, 31007, 31006]
     assert quat_angle(b["quaternions"][0], q_body) <= 1e-3 * ARCSEC
     assert matrix_angle(b["constant_rotation"], const_body) <= 1e-3 * ARCSEC
+    print(f"Apollo ISD vs spiceypy: time 0 s, position "
+          f"{np.abs(np.array(isd['instrument_position']['positions'][0]) - pos[:3]).max() * 1e6:.1e} mm, pointing "
+          f"{quat_angle(p['quaternions'][0], q_metric) / ARCSEC:.1e} arcsec, body {quat_angle(b['quaternions'][0], q_body) / ARCSEC:.1e} arcsec")
     # ISIS ApolloMetricCamera: detector origin at the image centre, IK focal plane, z direction -1
     assert isd["detector_center"] == {"line": 25356 / 2 - 0.5, "sample": 25798 / 2 - 0.5}
     assert isd["focal2pixel_samples"] == [0.0, -200.0, 0.0] and isd["focal2pixel_lines"] == [0.0, 0.0, 200.0]

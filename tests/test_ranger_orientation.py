@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from lunarmap.errors import FlightParameterError, GeometryError, InvalidInputError
-from lunarmap.missions import (FlightParameters, five_rotations, flight_parameters_from_orientation, photo_to_body,
+from lunarmap.missions import (FlightParameters, five_rotations, flight_parameters_from_orientation,
                                read_flight_parameters, sensor_to_body, table_coordinates, tilt_from_ranges)
 from lunarmap.missions.five_rotations import PHOTO_TO_SENSOR, omega_angle, orientation_angles, paper_step3
 from lunarmap.missions.flight_parameters import COLUMNS
