@@ -2,6 +2,8 @@
 
 ``lunarmap isd LABEL --kernels META_KERNEL [-o FILE]``
     write the CSM image support data (ALE ISD layout) of one image.
+``lunarmap ranger-kernels TABLE -o DIR [--focal-length MM --format MM --pixel MM]``
+    write a flight-parameter table (Ranger paper) as a SPICE kernel set with labels (issue 13).
 ``lunarmap demo [--output DIR] [--seed N] [--quick]``
     the whole chain on a synthetic mission: kernels, rendered images, tie points, adjustment with
     navigation observations, adjusted kernels reloaded, accuracy against truth.
@@ -32,6 +34,26 @@ def _cmd_isd(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_ranger_kernels(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .missions import RangerCamera, read_flight_parameters
+    from .missions.ranger_kernels import write_ranger_kernels
+
+    if not Path(args.table).is_file():
+        print(f"lunarmap: error: flight-parameter table {args.table} does not exist", file=sys.stderr)
+        return 2
+    table = read_flight_parameters(args.table, radius=args.radius)
+    if args.tolerance > 0:
+        table.check_consistency(tolerance_deg=args.tolerance)
+    camera = RangerCamera(focal_length=args.focal_length, format=args.format, pixel=args.pixel)
+    written = write_ranger_kernels(table, camera, args.output)
+    print(written.metakernel)
+    for photo, label in written.labels.items():
+        print(f"{photo}: {label}", file=sys.stderr)
+    return 0
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     import logging
 
@@ -58,6 +80,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--kernels", "-k", required=True, help="meta-kernel (.tm)")
     p.add_argument("--output", "-o", help="output JSON file (default: standard output)")
     p.set_defaults(func=_cmd_isd)
+    r = sub.add_parser("ranger-kernels", help="write a Ranger flight-parameter table as SPICE kernels and labels")
+    r.add_argument("table", help="flight-parameter table (.csv or .nc; see lunarmap.missions.flight_parameters)")
+    r.add_argument("--output", "-o", required=True, help="folder for the kernels, labels and ranger.tm")
+    r.add_argument("--focal-length", type=float, default=76.0, help="mm, in the photo coordinates' units")
+    r.add_argument("--format", type=float, default=11.0, help="side of the square image, mm")
+    r.add_argument("--pixel", type=float, default=0.01, help="image-coordinate pixel, mm")
+    r.add_argument("--radius", type=float, default=None, help="sphere radius, m (default: the table's, 1736600)")
+    r.add_argument("--tolerance", type=float, default=0.01,
+                   help="refuse LATp/LONp farther than this (deg) from the orientation's principal point; 0: no check")
+    r.set_defaults(func=_cmd_ranger_kernels)
     d = sub.add_parser("demo", help="the whole chain on a synthetic mission with known truth")
     d.add_argument("--output", "-o", default="demo_output", help="folder for everything the demo writes")
     d.add_argument("--seed", type=int, default=0, help="seed of the mission, scene and measurements")

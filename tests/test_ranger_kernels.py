@@ -140,3 +140,23 @@ def test_reconstructed_sequence_goes_through_the_block_adjustment(seq, tmp_path)
     assert result.converged and 0.8 < result.sigma0 < 1.2
     assert np.all(after.attrs["rms_m"] < 0.5 * before)
     assert 0.6 < after.attrs["normalized_rms"] < 1.4
+
+
+def test_command_line_writes_a_table_as_kernels(seq, tmp_path):
+    from lunarmap.cli import main
+
+    cols = {c: getattr(seq.table, c) for c in COLUMNS}
+    utc = ["1965-03-24T14:07:45.000", "1965-03-24T14:07:50.120", "1965-03-24T14:07:55.240",
+           "1965-03-24T14:08:00.360", "1965-03-24T14:08:05.480"]
+    FlightParameters.from_columns({"photo": seq.table.photo, **cols, "utc": utc},
+                                  radius=seq.table.radius).to_csv(tmp_path / "fp.csv")
+    assert main(["ranger-kernels", str(tmp_path / "fp.csv"), "-o", str(tmp_path / "k"), "--focal-length", "1140",
+                 "--format", "165", "--pixel", "0.01"]) == 0
+    cam = lunarmap.load_camera(tmp_path / "k" / "439.lbl", tmp_path / "k" / "ranger.tm")
+    g = cam.image_to_ground(8250.0, 8250.0)
+    assert np.linalg.norm(g - seq.cameras["439"].image_to_ground(8250.0, 8250.0)) < 1e-3
+    assert main(["ranger-kernels", str(tmp_path / "absent.csv"), "-o", str(tmp_path / "x")]) == 2
+    bad = tmp_path / "bad.csv"
+    bad.write_text((tmp_path / "fp.csv").read_text().replace(",AZSC,", ",AZX,"))
+    assert main(["ranger-kernels", str(bad), "-o", str(tmp_path / "y")]) == 2
+    assert not (tmp_path / "y").exists() and not (tmp_path / "x").exists()

@@ -179,7 +179,7 @@ def write_ranger_kernels(table: FlightParameters, camera: RangerCamera, folder: 
     Parameters
     ----------
     table : FlightParameters
-        Must carry exposure times (``et``).
+        Must carry exposure times (``et``, or ``utc`` converted with the set's leap seconds).
     camera : RangerCamera
         Interior orientation of the photos.
     folder : path-like
@@ -196,18 +196,14 @@ def write_ranger_kernels(table: FlightParameters, camera: RangerCamera, folder: 
     ------
     FlightParameterError
         The table has no exposure times, or two photos share a clock tick.
+    KernelError, SpiceError
+        A camera id outside ``-981xxx``, or an unreadable UTC time.
     """
-    if table.et is None:
+    if table.et is None and table.utc is None:
         raise FlightParameterError(f"flight parameters {table.source}: writing kernels needs the exposure times "
-                                   "(column et)")
+                                   "(column et or utc)")
     if int(camera_id) >= 0 or -(abs(int(camera_id)) // 1000) != RANGER_ID:
         raise KernelError(f"camera_id {camera_id} must be in the -981xxx range of the reconstructed spacecraft")
-    order = np.argsort(table.et, kind="stable")
-    zero_et = float(np.floor(table.et.min()) - 1000.0)
-    ticks = np.round((table.et - zero_et) * _TICKS)
-    if np.unique(ticks).size != ticks.size:
-        raise FlightParameterError(f"flight parameters {table.source}: two photos share one clock tick (1/{_TICKS} s)")
-    et = zero_et + ticks / _TICKS                         # exact in float64 (integer + dyadic fraction)
     dest = Path(folder).expanduser()
     dest.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=".lunarmap-ranger-", dir=dest))
@@ -216,6 +212,18 @@ def write_ranger_kernels(table: FlightParameters, camera: RangerCamera, folder: 
         ik_name = f"ranger_{abs(camera_id)}.ti"
         c, s = textkernels.lsk()
         write_text_kernel(f["lsk"], "LSK", s, c)
+        if table.et is not None:
+            et_table = table.et
+        else:                                             # UTC through the set's own leap seconds
+            with SPICE_LOCK, loaded_temporarily([f["lsk"]]):
+                et_table = np.array([q.str2et(u) for u in table.utc])  # type: ignore[union-attr]
+        order = np.argsort(et_table, kind="stable")
+        zero_et = float(np.floor(et_table.min()) - 1000.0)
+        ticks = np.round((et_table - zero_et) * _TICKS)
+        if np.unique(ticks).size != ticks.size:
+            raise FlightParameterError(f"flight parameters {table.source}: two photos share one clock tick "
+                                       f"(1/{_TICKS} s)")
+        et = zero_et + ticks / _TICKS                     # exact in float64 (integer + dyadic fraction)
         c, s = _sclk_sections(zero_et)
         write_text_kernel(f["sclk"], "SCLK", s, c)
         c, s = _pck_sections(table.radius / 1000.0)
