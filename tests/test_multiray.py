@@ -120,3 +120,26 @@ def test_bad_measurements_are_named(seq):
         intersect_photos(cams, ["P1", "P1"], ["435", "999"], np.zeros((2, 2)), ranger_camera=seq.camera)
     with pytest.raises(InvalidInputError, match="finite"):
         intersect_photos(cams, ["P1", "P1"], ["435", "439"], [[np.nan, 0], [0, 0]], ranger_camera=seq.camera)
+
+
+def test_five_photos_with_per_point_subsets():
+    """n rays: a 5-photo descent, each point measured on the photos that see it (3 to 5)."""
+    seq5 = ranger_sequence(photos=("431", "433", "435", "437", "439"))
+    rng = np.random.default_rng(21)
+    pts = seq5.ground_points(300, rng, photo="435", margin=0.02)
+    rows = []
+    for ph in seq5.table.photo:
+        li, sa = seq5.cameras[ph].ground_to_image(pts, on_miss="nan")
+        ok = np.isfinite(li)
+        x, y = seq5.camera.image_to_photo(li[ok], sa[ok])
+        rows += [(f"P{i}", ph, xi, yi) for i, xi, yi in zip(np.flatnonzero(ok), x, y)]
+    point = np.array([r[0] for r in rows])
+    photo = np.array([r[1] for r in rows])
+    xy = np.array([[r[2], r[3]] for r in rows]) + rng.normal(0, 0.33, (len(rows), 2))
+    r = intersect_photos(seq5.cameras, point, photo, xy, ranger_camera=seq5.camera)
+    truth = pts[[int(p[1:]) for p in r.point_id]]
+    z = (r.xyz - truth) / r.sigma_pooled()
+    print(f"5-photo descent: rays per point {np.bincount(r.n_rays)[2:]}, S0 {r.s0_pooled:.3f} mm, errors/sigma RMS "
+          f"{np.round(np.sqrt(np.mean(z ** 2, axis=0)), 3)}")
+    assert set(np.unique(r.n_rays)) >= {3, 5}
+    assert abs(r.s0_pooled / 0.33 - 1) < 0.1 and np.all(np.abs(np.sqrt(np.mean(z ** 2, axis=0)) - 1) < 0.2)

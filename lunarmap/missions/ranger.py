@@ -126,7 +126,7 @@ def ranger_cameras(table: FlightParameters, camera: RangerCamera = RANGER_B,
         sun = 1.5e11 * pos[i] / np.linalg.norm(pos[i])  # illumination is not modelled here
         eo = ExteriorOrientation(epoch=epoch, times=np.array([0.0]), positions=pos[i][None],
                                  velocities=np.zeros((1, 3)), quaternions=matrix_to_quat(rot[i])[None],
-                                 sun_times=np.array([0.0]), sun_positions=sun[None], body_frame="MOON",
+                                 sun_times=np.array([0.0]), sun_positions=sun[None], body_frame="IAU_MOON",
                                  attrs={"source": "lunarmap.missions.ranger (five rotations)", "photo": photo})
         out[photo] = FrameCamera(io, eo, shape)
     return out
