@@ -356,3 +356,33 @@ def test_apollo_wrong_frame_code_is_named(apollo_set, tmp_path):
                     "NaifFrameCode             = -916240")
     with pytest.raises(UnknownInstrumentError, match="-916240"):
         image_support(label, apollo_set / f"{apollo_set.name}.tm")
+
+
+@pytest.mark.parametrize("which", ["lo", "apollo"])
+def test_adjustment_partials_with_a_negative_focal_length(which, request):
+    """The correction partials (compiled and numpy paths) of a camera looking along -z, vs central differences."""
+    from lunarmap.camera.corrections import FrameCorrections
+
+    _, isd, _ = request.getfixturevalue(which)
+    cam = camera_from_isd(isd)
+    lines, samples = _pixels(isd, 30, np.random.default_rng(4))
+    X = cam.image_to_ground(lines, samples, on_miss="nan")
+    X = X[np.isfinite(X[:, 0])]
+    corr = cam.corrections()
+    p0 = np.array([2e-5, -1e-5, 3e-5, 5.0, -3.0, 2.0])
+    stack = FrameCorrections.stack([corr])
+    idx = np.zeros(len(X), np.int64)
+    for compiled in (True, False):
+        pix, jc, jx = stack.partials(p0[None], idx, X, True, compiled=compiled)
+        assert np.isfinite(pix).all()
+        for k in range(6):
+            h = 1e-7 if k < 3 else 1e-3
+            dp = np.zeros(6)
+            dp[k] = h
+            num = (stack.partials((p0 + dp)[None], idx, X, False, compiled=compiled)[0] -
+                   stack.partials((p0 - dp)[None], idx, X, False, compiled=compiled)[0]) / (2 * h)
+            assert np.abs(jc[:, :, k] - num).max() <= 1e-5 * max(1.0, np.abs(num).max()), (compiled, k)
+    # zero corrections reproduce the camera
+    l2, s2 = cam.ground_to_image(X, within_image=False)
+    pix0 = stack.partials(np.zeros((1, 6)), idx, X, False)[0]
+    assert np.abs(pix0 - np.column_stack([l2, s2])).max() < 1e-6
