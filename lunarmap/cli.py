@@ -8,6 +8,8 @@
 ``lunarmap run --example [--output DIR] [--seed N] [--quick]`` (= ``lunarmap demo``)
     writes the embedded example (a synthetic mission with rendered images and perturbed navigation)
     and runs it; prints accuracy against the simulation's truth.
+``lunarmap ranger-kernels TABLE -o DIR [--focal-length MM --format MM --pixel MM]``
+    write a flight-parameter table (Ranger paper) as a SPICE kernel set with labels (issue 13).
 """
 
 from __future__ import annotations
@@ -32,6 +34,26 @@ def _cmd_isd(args: argparse.Namespace) -> int:
     else:
         json.dump(isd.to_ale_dict(), sys.stdout, indent=2)
         sys.stdout.write("\n")
+    return 0
+
+
+def _cmd_ranger_kernels(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .missions import RangerCamera, read_flight_parameters
+    from .missions.ranger_kernels import write_ranger_kernels
+
+    if not Path(args.table).is_file():
+        print(f"lunarmap: error: flight-parameter table {args.table} does not exist", file=sys.stderr)
+        return 2
+    table = read_flight_parameters(args.table, radius=args.radius)
+    if args.tolerance > 0:
+        table.check_consistency(tolerance_deg=args.tolerance)
+    camera = RangerCamera(focal_length=args.focal_length, format=args.format, pixel=args.pixel)
+    written = write_ranger_kernels(table, camera, args.output)
+    print(written.metakernel)
+    for photo, label in written.labels.items():
+        print(f"{photo}: {label}", file=sys.stderr)
     return 0
 
 
@@ -117,6 +139,16 @@ def build_parser() -> argparse.ArgumentParser:
                        help="with --example: fewer interest and check points (same chain, faster)")
     r.set_defaults(func=_cmd_run)
     d.set_defaults(func=_cmd_demo, example=True)
+    g = sub.add_parser("ranger-kernels", help="write a Ranger flight-parameter table as SPICE kernels and labels")
+    g.add_argument("table", help="flight-parameter table (.csv or .nc; see lunarmap.missions.flight_parameters)")
+    g.add_argument("--output", "-o", required=True, help="folder for the kernels, labels and ranger.tm")
+    g.add_argument("--focal-length", type=float, default=76.0, help="mm, in the photo coordinates' units")
+    g.add_argument("--format", type=float, default=11.0, help="side of the square image, mm")
+    g.add_argument("--pixel", type=float, default=0.01, help="image-coordinate pixel, mm")
+    g.add_argument("--radius", type=float, default=None, help="sphere radius, m (default: the table's, 1736600)")
+    g.add_argument("--tolerance", type=float, default=0.01,
+                   help="refuse LATp/LONp farther than this (deg) from the orientation's principal point; 0: no check")
+    g.set_defaults(func=_cmd_ranger_kernels)
     return parser
 
 

@@ -59,6 +59,9 @@ __all__ = [
     "NoOverlapError",
     "CheckPointError",
     "MissingDependencyError",
+    "MissionError",
+    "FlightParameterError",
+    "ReseauError",
 ]
 
 
@@ -284,3 +287,20 @@ class CheckPointError(EvaluationInputError):
 class MissingDependencyError(LunarmapError, ImportError):
     """An optional dependency (named, with the extra that installs it) is not installed."""
 
+
+
+# --- Historical missions (lunarmap.missions, issue 13: Ranger flight parameters, reseau, multi-ray) ---
+
+class MissionError(LunarmapError):
+    """Base class of the errors of :mod:`lunarmap.missions` (historical missions)."""
+
+
+class FlightParameterError(MissionError, InvalidInputError):
+    """A flight-parameter table is unusable: a missing column, a non-number, an impossible geometry
+    (``Range`` shorter than the altitude, ``|LAT| > 90``, a camera below the surface) or values that
+    contradict each other; the message names the file, the photo and the column."""
+
+
+class ReseauError(MissionError, InvalidInputError):
+    """Reseau marks cannot define the correction: fewer marks than the grid needs, missing or
+    non-finite marks, a degenerate (folded) grid cell, or a point outside the reseau."""

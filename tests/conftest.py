@@ -47,3 +47,15 @@ def sim_mission(tmp_path_factory) -> Path:
     from lunarmap.synthetic import write_mission
 
     return write_mission(tmp_path_factory.mktemp("sim_mission"))
+
+
+# -- historical film cameras (issue 13) ------------------------------------------------------------
+
+@pytest.fixture(scope="session")
+def lo_set() -> Path:
+    return shared_set("lunar_orbiter_3133_high_res_1")
+
+
+@pytest.fixture(scope="session")
+def apollo_set() -> Path:
+    return shared_set("apollo15_metric_AS15-M-1450")

@@ -97,7 +97,8 @@ def test_none_is_identity_and_copies() -> None:
 
 
 def test_registry_and_errors() -> None:
-    assert set(DISTORTION_MODELS) == {"none", "lrolrocnac", "radial", "kaguyalism"}
+    assert set(DISTORTION_MODELS) == {"none", "lrolrocnac", "radial", "kaguyalism",
+                                      "lunarorbiter", "apollometric"}   # film cameras, issue 13
     assert isinstance(make_distortion("LROLROCNAC", {"coefficients": [1e-5]}), LroNacDistortion)
     assert isinstance(make_distortion("radial", {"coefficients": [0.0, 1e-5]}), RadialDistortion)
     with pytest.raises(InvalidInputError, match="unknown distortion model"):

@@ -120,7 +120,7 @@ def pinhole_image(v: Array, f: Array, distortion: Distortion | Sequence[tuple[Di
     """
     n = v.shape[0]
     f = np.broadcast_to(np.asarray(f, dtype=float), (n,))
-    in_front = v[:, 2] > 0.0
+    in_front = v[:, 2] * f > 0.0   # a negative focal length looks along -z (ISIS z direction -1)
     with np.errstate(divide="ignore", invalid="ignore"):
         iz = np.where(in_front, 1.0 / v[:, 2], np.nan)
     ux = f * v[:, 0] * iz
@@ -174,7 +174,7 @@ def _frame_focal_py(M, P, c, f, idx, X):
         d2 = X[i, 2] - P[k, 2] - c[k, 2]
         for r in range(3):
             v[i, r] = M[k, r, 0] * d0 + M[k, r, 1] * d1 + M[k, r, 2] * d2
-        if v[i, 2] > 0.0:
+        if v[i, 2] * f[k] > 0.0:
             s = f[k] / v[i, 2]
             u[i, 0] = v[i, 0] * s
             u[i, 1] = v[i, 1] * s

@@ -459,3 +459,164 @@ def make_distortion(model: str, coefficients: Mapping[str, Any] | None = None) -
 def distortion_from_interior(interior: Any) -> Distortion:
     """The distortion model of an :class:`~lunarmap.camera.interior.InteriorOrientation`."""
     return make_distortion(interior.distortion_model, interior.distortion_coefficients)
+
+
+# --- Film cameras of the historical missions (issue 13: Lunar Orbiter, Apollo metric) ----------------
+
+class LunarOrbiterDistortion(Distortion):
+    """Lunar Orbiter high-resolution camera: perspective correction, then radial about a point of symmetry.
+
+    Implemented from ISIS ``LoHighDistortionMap::SetFocalPlane`` (the defining direction; ISIS's
+    ``SetUndistortedFocalPlane`` is a first-order approximation of its inverse, here the exact
+    inverse is solved by 2-D Newton iteration)::
+
+        s = 1 + px * dx + py * dy                      (perspective factors)
+        (pcx, pcy) = (dx, dy) * s
+        (qx, qy) = (pcx - x0, pcy - y0)                (point of symmetry)
+        ux = pcx - (k0 + k1 * r2) * qx,  r2 = qx**2 + qy**2 (likewise uy)
+
+    with IK ``PERSPECTIVE_FACTORS = (px, py)`` (mm^-1), ``POINT_OF_SYMMETRY = (x0, y0)`` (mm) and
+    ``OD_K = (k0, k1)`` (dimensionless, mm^-2). ALE's ``lunarorbiter`` block carries ``perspective_x``,
+    ``perspective_y``, ``center_point_x``, ``center_point_y`` but not the ``OD_K`` coefficients;
+    lunarmap adds them as ``coefficients`` (absent: zero, the radial part is then off). ISIS skips the
+    radial term within 1e-3 mm of the point of symmetry; here it is not skipped (smooth model).
+    """
+
+    name = "lunarorbiter"
+
+    def __init__(self, perspective_x: float, perspective_y: float, center_point_x: float, center_point_y: float,
+                 coefficients: Sequence[float] = (0.0, 0.0)) -> None:
+        k = [float(c) for c in coefficients]
+        if len(k) > 3 or (len(k) == 3 and k[2] != 0.0):
+            raise InvalidInputError(f"lunarorbiter distortion uses OD_K = (k0, k1) (a third value must be 0), got {k}")
+        self.px, self.py = float(perspective_x), float(perspective_y)
+        self.x0, self.y0 = float(center_point_x), float(center_point_y)
+        self.k = tuple((k + [0.0, 0.0])[:2])
+
+    def undistort(self, x: ArrayLike, y: ArrayLike) -> tuple[Array, Array]:
+        x, y = _xy(x, y)
+        s = 1.0 + self.px * x + self.py * y
+        pcx, pcy = x * s, y * s
+        qx, qy = pcx - self.x0, pcy - self.y0
+        g = self.k[0] + self.k[1] * (qx * qx + qy * qy)
+        return pcx - g * qx, pcy - g * qy
+
+    def undistort_jacobian(self, x: ArrayLike, y: ArrayLike) -> Array:
+        x, y = _xy(x, y)
+        s = 1.0 + self.px * x + self.py * y
+        # d(pc)/d(d): pc = d * s(d)
+        a00, a01, a10, a11 = s + x * self.px, x * self.py, y * self.px, s + y * self.py
+        qx, qy = x * s - self.x0, y * s - self.y0
+        g = self.k[0] + self.k[1] * (qx * qx + qy * qy)
+        # d(u)/d(pc) = (1 - g) I - 2 k1 q q^T
+        b00, b11 = 1.0 - g - 2.0 * self.k[1] * qx * qx, 1.0 - g - 2.0 * self.k[1] * qy * qy
+        b01 = -2.0 * self.k[1] * qx * qy
+        return _jacobian(b00 * a00 + b01 * a10, b00 * a01 + b01 * a11, b01 * a00 + b11 * a10, b01 * a01 + b11 * a11)
+
+    def distort(self, x: ArrayLike, y: ArrayLike) -> tuple[Array, Array]:
+        return _newton_inverse(self, *_xy(x, y))
+
+    def __repr__(self) -> str:
+        return (f"LunarOrbiterDistortion(perspective_x={self.px!r}, perspective_y={self.py!r}, "
+                f"center_point_x={self.x0!r}, center_point_y={self.y0!r}, coefficients={self.k!r})")
+
+
+class ApolloMetricDistortion(Distortion):
+    """Apollo 15-17 metric (mapping) camera: principal point, radial and decentering distortion.
+
+    Implemented from ISIS ``ApolloMetricDistortionMap::SetFocalPlane`` (the defining direction; ISIS
+    inverts it by fixed-point iteration to 1e-6 mm, here by 2-D Newton to 1e-13 mm)::
+
+        (x, y) = (dx - xp, dy - yp)                    (principal point, IK PP)
+        rr = x**2 + y**2
+        dr = 1 + k1 rr + k2 rr**2 + k3 rr**3           (IK OD_K, mm^-2, mm^-4, mm^-6)
+        dt = j1 rr + j2 rr**2                          (IK DECENTER = (j1, j2, t0); mm^-1, mm^-3, rad)
+        ux = dr * x - dt * sin(t0),  uy = dr * y + dt * cos(t0)
+
+    The undistorted coordinates are relative to the principal point. ALE models this camera without
+    distortion; lunarmap's ISD names the model ``apollometric`` with ``principal_point`` (mm),
+    ``coefficients`` (``OD_K``) and ``decentering`` (``DECENTER``).
+    """
+
+    name = "apollometric"
+
+    def __init__(self, principal_point: Sequence[float] = (0.0, 0.0), coefficients: Sequence[float] = (0.0,) * 3,
+                 decentering: Sequence[float] = (0.0, 0.0, 0.0)) -> None:
+        pp = [float(c) for c in principal_point]
+        k = [float(c) for c in coefficients]
+        j = [float(c) for c in decentering]
+        if len(pp) != 2 or len(k) > 3 or len(j) != 3:
+            raise InvalidInputError("apollometric distortion needs principal_point (2 values), at most 3 "
+                                    f"coefficients (OD_K) and decentering (3 values: j1, j2, t0); got {pp}, {k}, {j}")
+        self.xp, self.yp = pp
+        self.k = tuple(k + [0.0] * (3 - len(k)))
+        self.j1, self.j2, self.t0 = j
+
+    def undistort(self, x: ArrayLike, y: ArrayLike) -> tuple[Array, Array]:
+        x, y = _xy(x, y)
+        x, y = x - self.xp, y - self.yp
+        rr = x * x + y * y
+        dr = 1.0 + rr * (self.k[0] + rr * (self.k[1] + rr * self.k[2]))
+        dt = rr * (self.j1 + rr * self.j2)
+        return dr * x - dt * np.sin(self.t0), dr * y + dt * np.cos(self.t0)
+
+    def undistort_jacobian(self, x: ArrayLike, y: ArrayLike) -> Array:
+        x, y = _xy(x, y)
+        x, y = x - self.xp, y - self.yp
+        rr = x * x + y * y
+        dr = 1.0 + rr * (self.k[0] + rr * (self.k[1] + rr * self.k[2]))
+        ddr = self.k[0] + rr * (2.0 * self.k[1] + 3.0 * rr * self.k[2])   # d dr / d rr
+        ddt = self.j1 + 2.0 * self.j2 * rr                                  # d dt / d rr
+        st, ct = np.sin(self.t0), np.cos(self.t0)
+        # d rr / d(x, y) = 2 (x, y)
+        return _jacobian(dr + 2.0 * x * x * ddr - 2.0 * x * ddt * st, 2.0 * x * y * ddr - 2.0 * y * ddt * st,
+                         2.0 * x * y * ddr + 2.0 * x * ddt * ct, dr + 2.0 * y * y * ddr + 2.0 * y * ddt * ct)
+
+    def distort(self, x: ArrayLike, y: ArrayLike) -> tuple[Array, Array]:
+        ux, uy = _xy(x, y)
+        return _newton_inverse(self, ux, uy, start=(ux + self.xp, uy + self.yp))
+
+    def __repr__(self) -> str:
+        return (f"ApolloMetricDistortion(principal_point={(self.xp, self.yp)!r}, coefficients={self.k!r}, "
+                f"decentering={(self.j1, self.j2, self.t0)!r})")
+
+
+def _newton_inverse(model: Distortion, ux: Array, uy: Array,
+                    start: tuple[Array, Array] | None = None) -> tuple[Array, Array]:
+    """Distorted coordinates solving ``model.undistort(d) = u`` by 2-D Newton iteration; NaN where it fails."""
+    dx, dy = (ux.copy(), uy.copy()) if start is None else (np.array(start[0], float), np.array(start[1], float))
+    big = np.ones(ux.shape, dtype=bool)
+    with np.errstate(all="ignore"):  # diverging points end as NaN below
+        for _ in range(_NEWTON_MAXITER):
+            fx, fy = model.undistort(dx, dy)
+            j = model.undistort_jacobian(dx, dy)
+            det = j[..., 0, 0] * j[..., 1, 1] - j[..., 0, 1] * j[..., 1, 0]
+            rx, ry = fx - ux, fy - uy
+            sx = (j[..., 1, 1] * rx - j[..., 0, 1] * ry) / det
+            sy = (j[..., 0, 0] * ry - j[..., 1, 0] * rx) / det
+            dx, dy = dx - sx, dy - sy
+            big = ~(np.maximum(np.abs(sx), np.abs(sy)) <= _NEWTON_TOL * np.maximum(1.0, np.hypot(dx, dy)))
+            if not np.any(big):
+                break
+    return np.where(big, np.nan, dx), np.where(big, np.nan, dy)
+
+
+def _make_lunar_orbiter(block: Mapping[str, Any]) -> Distortion:
+    try:
+        return LunarOrbiterDistortion(block["perspective_x"], block["perspective_y"], block["center_point_x"],
+                                      block["center_point_y"], np.atleast_1d(block.get("coefficients", [0.0, 0.0])))
+    except KeyError as exc:
+        raise InvalidInputError(f"lunarorbiter distortion block lacks {exc.args[0]!r}") from None
+
+
+def _make_apollo_metric(block: Mapping[str, Any]) -> Distortion:
+    try:
+        return ApolloMetricDistortion(np.atleast_1d(block["principal_point"]), np.atleast_1d(block["coefficients"]),
+                                      np.atleast_1d(block["decentering"]))
+    except KeyError as exc:
+        raise InvalidInputError(f"apollometric distortion block lacks {exc.args[0]!r}") from None
+
+
+DISTORTION_MODELS["lunarorbiter"] = _make_lunar_orbiter
+DISTORTION_MODELS["apollometric"] = _make_apollo_metric
+__all__ += ["LunarOrbiterDistortion", "ApolloMetricDistortion"]

@@ -43,9 +43,15 @@ def interior_from_isd(isd: ImageSupport, distortion: bool = True) -> InteriorOri
         starting_detector_sample=float(isd.starting_detector_sample),
         line_summing=int(isd.line_summing), sample_summing=int(isd.sample_summing),
         distortion_model=model, distortion_coefficients=dict(coeffs),
-        pixel_pitch=float(abs(1.0 / isd.focal2pixel_samples[2])) if isd.focal2pixel_samples[2] else float("nan"),
+        pixel_pitch=_pixel_pitch(isd),
         name=isd.name_sensor,
     )
+
+
+def _pixel_pitch(isd: ImageSupport) -> float:
+    """Square-pixel pitch (mm) of the focal2pixel transform: 1 / sqrt(|det|) (samples along x or y alike)."""
+    det = abs(isd.focal2pixel_lines[1] * isd.focal2pixel_samples[2] - isd.focal2pixel_lines[2] * isd.focal2pixel_samples[1])
+    return float(1.0 / np.sqrt(det)) if det > 0 else float("nan")
 
 
 def shape_from_isd(isd: ImageSupport, radius: float | None = None) -> Shape:

@@ -289,9 +289,9 @@ class _CameraModel:
 
     def _project(self, v: Array) -> tuple[Array, Array, Array]:
         """Image coordinates of sensor-frame vectors; also the validity mask (in front)."""
-        in_front = v[..., 2] > 0.0
+        f = self.interior.focal_length
+        in_front = v[..., 2] * f > 0.0   # a negative focal length looks along -z (ISIS z direction -1)
         with np.errstate(divide="ignore", invalid="ignore"):
-            f = self.interior.focal_length
             ux = np.where(in_front, f * v[..., 0] / v[..., 2], np.nan)
             uy = np.where(in_front, f * v[..., 1] / v[..., 2], np.nan)
         dx, dy = self.distortion.distort(ux, uy)

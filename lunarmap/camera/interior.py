@@ -30,7 +30,9 @@ class InteriorOrientation:
     Parameters
     ----------
     focal_length : float
-        Focal length, millimetres.
+        Focal length, millimetres. Negative for a camera that looks along ``-z`` of its sensor frame
+        (ISIS's focal-plane z direction -1: Lunar Orbiter and Apollo metric); the look vector is
+        ``(x, y, f)`` either way.
     focal2pixel_lines, focal2pixel_samples : tuple of 3 float
         Affine focal-plane (mm) to detector (pixels) coefficients, as in ALE's ISD.
     detector_center_line, detector_center_sample : float

@@ -467,8 +467,8 @@ def image_support_fields(d: Mapping[str, Any], source: str = "") -> dict[str, An
                                                         body.angular_velocities).matrices(sun_t)
 
     focal = doc.number(doc.block(d, "focal_length_model"), "focal_length", "focal_length_model.")
-    if focal <= 0.0:
-        raise doc.error("focal_length_model.focal_length", f"must be positive (mm), got {focal!r}")
+    if focal == 0.0:  # negative: the camera looks along -z of its frame (lunarmap's Lunar Orbiter, Apollo metric)
+        raise doc.error("focal_length_model.focal_length", f"must be non-zero (mm), got {focal!r}")
     f2l = doc.array(d, "focal2pixel_lines", (3,))
     f2s = doc.array(d, "focal2pixel_samples", (3,))
     if abs(f2l[1] * f2s[2] - f2l[2] * f2s[1]) == 0.0:

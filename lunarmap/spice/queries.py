@@ -186,7 +186,14 @@ def frame_trace(frame: str | int, et: float) -> tuple[list[int], list[int]]:
                     nxt = int(spiceypy.ckfrot(clsid, et)[1])
                 elif cls == 4:
                     nxt = int(spiceypy.tkfram(clsid)[1])
-                else:  # dynamic frames (class 5) have no simple parent; ALE treats them likewise
+                elif cls == 5 and _dtpool(f"FRAME_{clsid}_RELATIVE")[0]:
+                    # a dynamic frame is listed with the frame it is defined relative to, as ALE does
+                    # (Apollo's APOLLO_15_NADIR -> B1950 -> J2000); issue 13
+                    rel = spiceypy.gcpool(f"FRAME_{clsid}_RELATIVE", 0, 1)[0] \
+                        if _dtpool(f"FRAME_{clsid}_RELATIVE")[2] == "C" \
+                        else int(spiceypy.gipool(f"FRAME_{clsid}_RELATIVE", 0, 1)[0])
+                    nxt = frame_id(rel)
+                else:  # other dynamic frames have no simple parent; ALE treats them likewise
                     nxt = 1
             if nxt in codes or len(codes) > 32:
                 raise KernelCoverageError(f"frame chain of {frame} does not reach J2000: {codes}")

@@ -22,12 +22,17 @@ from .clementine import ClementineUvvisDriver
 from .generic import GenericDriver
 from .kaguya import KaguyaTcDriver
 from .lro import LroNacDriver, LroNacPds3Driver
+# historical film cameras (issue 13)
+from .apollo import ApolloMetricDriver
+from .lunar_orbiter import LunarOrbiterHighDriver
 
 __all__ = ["Driver", "LroNacDriver", "LroNacPds3Driver", "ClementineUvvisDriver", "KaguyaTcDriver", "GenericDriver",
+           "LunarOrbiterHighDriver", "ApolloMetricDriver",
            "DRIVERS", "UNSUPPORTED_LABELS", "driver_for", "image_support"]
 
 #: Drivers in the order they are asked; the generic IK-configured driver is last.
-DRIVERS: list[type[Driver]] = [LroNacDriver, LroNacPds3Driver, ClementineUvvisDriver, KaguyaTcDriver, GenericDriver]
+DRIVERS: list[type[Driver]] = [LroNacDriver, LroNacPds3Driver, ClementineUvvisDriver, KaguyaTcDriver,
+                               LunarOrbiterHighDriver, ApolloMetricDriver, GenericDriver]
 
 
 def _kaguya_tc_isis(label: Label) -> bool:
@@ -40,9 +45,18 @@ def _kaguya_tc_isis(label: Label) -> bool:
 #: name after the specific drivers and before :class:`GenericDriver`, which would
 #: otherwise claim them (they are ISIS labels with a NAIF frame code) and fail deep
 #: inside SPICE, or worse, succeed with the wrong conventions.
+def _lunar_orbiter_medium(label: Label) -> bool:
+    inst = Driver.isis_instrument(label)
+    return inst is not None and str(inst.get("SpacecraftName", "")).upper().startswith("LUNAR ORBITER") and \
+        str(inst.get("InstrumentId", "")).upper() == "MEDIUM RESOLUTION CAMERA"
+
+
 UNSUPPORTED_LABELS: list[tuple[Callable[[Label], bool], str]] = [
     (_kaguya_tc_isis, "Kaguya TC is supported from its PDS3 level-2B0 label only (the ISIS label's start time "
                       "and detector keywords are not read); give the PDS3 label"),
+    (_lunar_orbiter_medium, "the Lunar Orbiter medium-resolution camera is not supported (its boresight comes "
+                            "from the label and its distortion from ISIS's LoMediumDistortionMap); only the "
+                            "high-resolution camera is"),
 ]
 
 
