@@ -141,7 +141,15 @@ def write_report(result: Any) -> Path:
             z = res["normalized"].values[m]
             groups.append((k, int(m.sum()), float(np.sqrt(np.mean(v[m] ** 2))), float(np.sqrt(np.mean(z ** 2)))))
     counts = result.counts()
-    rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(str(val))}</td></tr>" for k, val in [
+
+    def fmt(v: Any) -> str:
+        if isinstance(v, (list, tuple)):
+            return " / ".join(f"{x:.3f}" for x in v)
+        if isinstance(v, float):
+            return f"{v:.4g}"
+        return str(v)
+
+    rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(fmt(val))}</td></tr>" for k, val in [
         ("configuration", result.config.source), ("images", len(names)),
         ("pairs skipped (no overlap)", len(summary.get("skipped_pairs", []))),
         ("points", summary.get("n_points")), ("image observations", summary.get("n_observations")),
