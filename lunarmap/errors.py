@@ -52,6 +52,11 @@ __all__ = [
     "MissingClockError",
     "TrajectoryFitError",
     "BlockMissionError",
+    "CubeError",
+    "CubeFormatError",
+    "MissingSpiceTablesError",
+    "IsisNetworkFormatError",
+    "UnknownImageError",
 ]
 
 
@@ -244,3 +249,29 @@ class TrajectoryFitError(OrientationKernelError, ConvergenceError):
 
 class BlockMissionError(InvalidInputError, FileNotFoundError):
     """A synthetic block-mission folder is missing, incomplete or does not match its manifest."""
+
+
+# --- ISIS cubes, ISIS control networks, ASP files (lunarmap.io, issue 14) ---
+
+class CubeError(LunarmapError):
+    """Base class of the errors raised while reading or writing image cubes and rasters."""
+
+
+class CubeFormatError(CubeError, LabelError):
+    """An image file is unusable: truncated, an unsupported pixel type or layout, a malformed label.
+
+    The message names the file and the keyword or byte range involved.
+    """
+
+
+class MissingSpiceTablesError(CubeError, LabelError):
+    """An ISIS cube lacks the tables ``spiceinit`` attaches (``InstrumentPointing``, ...), or a keyword
+    a camera without kernels needs (``NaifKeywords``, a ``CLOCK_ET_..._COMPUTED`` entry)."""
+
+
+class IsisNetworkFormatError(NetworkFormatError):
+    """An ISIS control network file is unusable: unknown version, malformed protobuf or PVL."""
+
+
+class UnknownImageError(IsisNetworkFormatError):
+    """A control measure refers to an image (ISIS serial number) that is not in the image list."""
