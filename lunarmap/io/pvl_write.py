@@ -17,6 +17,7 @@ from ..errors import InvalidInputError
 __all__ = ["Unit", "format_pvl", "pvl_value"]
 
 _BARE = re.compile(r"^[A-Za-z0-9_.+\-:/$]+$")
+_NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 
 
 @dataclass(frozen=True)
@@ -44,7 +45,8 @@ def pvl_value(v: Any) -> str:
     if hasattr(v, "item") and not isinstance(v, str):  # numpy scalar
         return pvl_value(v.item())
     s = str(v)
-    if s and _BARE.match(s) and s.lower() not in ("end", "end_object", "end_group", "object", "group"):
+    if s and _BARE.match(s) and s.lower() not in ("end", "end_object", "end_group", "object", "group") \
+            and not _NUMBER.match(s):  # "007" unquoted would read back as the number 7
         return s
     if '"' in s:
         raise InvalidInputError(f"PVL string {s!r} holds a double quote")
