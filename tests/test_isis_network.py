@@ -40,7 +40,7 @@ def network():
 @pytest.mark.parametrize("form", ["v5", "v2", "pvl"])
 def test_round_trip_every_field(tmp_path, network, form):
     if form == "pvl":  # the PVL parser is pure Python: a smaller network keeps the test fast
-        network = random_network(100, seed=4)
+        network = random_network(100, seed=5)
     write = {"v5": lambda d, p: write_isis_network(d, p, 5), "v2": lambda d, p: write_isis_network(d, p, 2),
              "pvl": write_pvl_network}[form]
     images = list(network["image_id"].values)
