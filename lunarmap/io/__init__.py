@@ -12,6 +12,10 @@ networks as :class:`~lunarmap.adjust.network.ControlNetwork` are in :mod:`lunarm
 """
 
 from .cube import IsisCube, Table, copy_cube_with_tables, open_cube, write_cube
+from .isis_network import read_isis_network, write_isis_network
+from .isis_network_pvl import write_pvl_network
+from .raster import open_image
 from .special import SPECIAL_CODES
 
-__all__ = ["IsisCube", "Table", "open_cube", "write_cube", "copy_cube_with_tables", "SPECIAL_CODES"]
+__all__ = ["IsisCube", "Table", "open_cube", "write_cube", "copy_cube_with_tables", "SPECIAL_CODES", "open_image",
+           "read_isis_network", "write_isis_network", "write_pvl_network"]
