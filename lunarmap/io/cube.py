@@ -378,8 +378,7 @@ def _token(path: str) -> str:
 def open_cube(path: str | os.PathLike[str], chunks: Any = None) -> xr.DataArray:
     """The pixels of an ISIS cube as a lazy ``xarray.DataArray`` (see :meth:`IsisCube.pixels`).
 
-    The special-pixel codes are attached as the coordinate-free companion
-    ``result.attrs["special"]`` is not stored; call :meth:`IsisCube.special` for the mask.
+    Special pixels are NaN; :meth:`IsisCube.special` says which kind each one was.
     """
     return IsisCube(path).pixels(chunks=chunks)
 
