@@ -18,7 +18,7 @@ import xarray as xr
 from ..atomic import atomic_write
 from ..errors import IsisNetworkFormatError, LabelError
 from ..labels import Label, parse_label
-from .isis_network import (APRIORI_SOURCES, ISIS_POINT_TYPES, MEASURE_TYPES, _COV_INDEX, _FIXED, _FREE, _PIXEL,
+from .isis_network_data import (APRIORI_SOURCES, ISIS_POINT_TYPES, MEASURE_TYPES, _COV_INDEX, _FIXED, _FREE, _PIXEL,
                            _REFERENCE, _columns_for_writing, _get, _image_index, network_dataset)
 from .pvl_write import Unit, format_pvl
 
