@@ -64,6 +64,11 @@ _LAZY = {
     "build_block": ("lunarmap.adjust", "build_block"),
     "NavigationSpec": ("lunarmap.adjust", "NavigationSpec"),
     "write_adjusted": ("lunarmap.adjust", "write_adjusted"),
+    # ISIS and ASP interop (issue 14)
+    "camera_from_cube": ("lunarmap.camera.cube", "camera_from_cube"),
+    "open_image": ("lunarmap.io.raster", "open_image"),
+    "read_isis_network": ("lunarmap.adjust.isis", "read_isis_network"),
+    "write_isis_network": ("lunarmap.adjust.isis", "write_isis_network"),
 }
 
 __all__ = ["errors", "LunarmapError", "__version__", "solve", *_LAZY]

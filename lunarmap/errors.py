@@ -62,6 +62,11 @@ __all__ = [
     "MissionError",
     "FlightParameterError",
     "ReseauError",
+    "CubeError",
+    "CubeFormatError",
+    "MissingSpiceTablesError",
+    "IsisNetworkFormatError",
+    "UnknownImageError",
 ]
 
 
@@ -304,3 +309,29 @@ class FlightParameterError(MissionError, InvalidInputError):
 class ReseauError(MissionError, InvalidInputError):
     """Reseau marks cannot define the correction: fewer marks than the grid needs, missing or
     non-finite marks, a degenerate (folded) grid cell, or a point outside the reseau."""
+
+
+# --- ISIS cubes, ISIS control networks, ASP files (lunarmap.io, issue 14) ---
+
+class CubeError(LunarmapError):
+    """Base class of the errors raised while reading or writing image cubes and rasters."""
+
+
+class CubeFormatError(CubeError, LabelError):
+    """An image file is unusable: truncated, an unsupported pixel type or layout, a malformed label.
+
+    The message names the file and the keyword or byte range involved.
+    """
+
+
+class MissingSpiceTablesError(CubeError, LabelError):
+    """An ISIS cube lacks the tables ``spiceinit`` attaches (``InstrumentPointing``, ...), or a keyword
+    a camera without kernels needs (``NaifKeywords``, a ``CLOCK_ET_..._COMPUTED`` entry)."""
+
+
+class IsisNetworkFormatError(NetworkFormatError):
+    """An ISIS control network file is unusable: unknown version, malformed protobuf or PVL."""
+
+
+class UnknownImageError(IsisNetworkFormatError):
+    """A control measure refers to an image (ISIS serial number) that is not in the image list."""

@@ -98,6 +98,7 @@ _TOKEN = re.compile(
 
 def _tokenize(text: str) -> Iterator[tuple[str, str, int]]:
     pos, n = 0, len(text)
+    line, counted = 1, 0  # line numbers counted incrementally: linear in the text (PVL networks are MBs)
     while pos < n:
         m = _TOKEN.match(text, pos)
         if not m:
@@ -109,7 +110,9 @@ def _tokenize(text: str) -> Iterator[tuple[str, str, int]]:
         kind = m.lastgroup
         if kind == "comment" or kind is None:
             continue
-        line = text.count("\n", 0, m.start(kind)) + 1
+        start = m.start(kind)
+        line += text.count("\n", counted, start)
+        counted = start
         yield kind, m.group(kind), line
 
 
