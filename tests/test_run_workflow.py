@@ -224,7 +224,7 @@ def test_bad_inputs_fail_early_with_named_errors(example, tmp_path):
     bad = folder / "mission" / "broken.nc"
     bad.write_bytes(b"not a netCDF file")
     cfg = _config(example, "badimage", **{'pixels = "mission/orbit1_nac.nc"': 'pixels = "mission/broken.nc"'})
-    with pytest.raises(ConfigError, match="broken.nc are not a readable netCDF image"):
+    with pytest.raises(ConfigError, match="broken.nc are not a readable image"):
         run(cfg, scheduler="sync")
     assert not (folder / "badimage" / "store").exists() or not any((folder / "badimage" / "store").rglob("*.*"))
     # a meta-kernel naming a kernel that is not there: MissingKernelError before any step
@@ -245,3 +245,18 @@ def test_images_without_overlap_are_reported_and_skipped(example):
     steps = (example.parent / "nooverlap" / "store" / "match")
     notes = [np.load(p)["note"].item() for p in steps.glob("*.npz")]
     assert len(notes) == 6 and all(n.startswith("skipped") for n in notes)
+
+
+def test_isis_cube_pixels_give_the_same_run(example, serial):
+    """The same images as ISIS cubes (lunarmap.io) instead of netCDF: identical adjustment."""
+    from lunarmap.io.cube import write_cube
+    from lunarmap.workflows.steps import read_pixels
+
+    replace = {}
+    for name in NAMES:
+        nc = example.parent / "mission" / f"{name}.nc"
+        cube = example.parent / "mission" / f"{name}.cub"
+        write_cube(cube, read_pixels(nc).values, pixel_type="Real")
+        replace[f'pixels = "mission/{name}.nc"'] = f'pixels = "mission/{name}.cub"'
+    res = run(_config(example, "cubes", **replace), scheduler="sync", report=False)
+    np.testing.assert_array_equal(_points(res), _points(serial))

@@ -12,7 +12,7 @@ Layout (every relative path is taken relative to the configuration file's folder
     [[images]]
     name = "orbit1_nac"              # unique; letters, digits, _ . -
     label = "mission/orbit1_nac.lbl" # ISIS or PDS3 label
-    pixels = "mission/orbit1_nac.nc" # netCDF (xarray DataArray, dims line x sample)
+    pixels = "mission/orbit1_nac.nc" # netCDF (xarray DataArray, dims line x sample), ISIS cube, PDS3 .IMG or GeoTIFF
     group = "1-nac"                  # navigation group (orbit, camera): offsets/drifts are per group
 
     [dtm]                            # optional: heights for the tie-point prediction

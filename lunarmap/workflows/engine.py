@@ -122,15 +122,14 @@ def build_graph(cfg: RunConfig, store: Store) -> _Graph:
     isd, rpc, tiles, isd_key, tile_keys, pix = {}, {}, {}, {}, {}, {}
     halo = params.detect.border + params.detect.window + params.detect.nms
     for im in cfg.images:
+        from .steps import read_pixels
+
         try:
             pix[im.name] = file_digest(im.pixels)
-            with xr.open_dataarray(im.pixels) as da:
-                shape = tuple(int(s) for s in da.shape)
-        except (OSError, ValueError) as err:
-            raise ConfigError(f"{cfg.source}: image {im.name}: pixels {im.pixels} are not a readable netCDF image "
+            shape = tuple(int(v) for v in read_pixels(im.pixels).shape)
+        except (OSError, WorkflowError) as err:
+            raise ConfigError(f"{cfg.source}: image {im.name}: pixels {im.pixels} are not a readable image "
                               f"({err})") from None
-        if len(shape) != 2:
-            raise ConfigError(f"{cfg.source}: image {im.name}: pixels {im.pixels} are not 2-D (shape {shape})")
         isd_key[im.name] = step_key("isd", None, [file_digest(im.label), kernels_digest])
         isd[im.name] = node("isd", isd_key[im.name], isd_step, store, isd_key[im.name], im.name, str(im.label),
                             str(cfg.metakernel))

@@ -86,7 +86,8 @@ def _stamp(path: str | Path) -> tuple[str, int, int]:
 
 
 def read_pixels(path: str | Path) -> xr.DataArray:
-    """Image pixels as a ``(line, sample)`` DataArray (netCDF written by xarray, e.g. :func:`lunarmap.simulate.render_block`).
+    """Image pixels as a ``(line, sample)`` DataArray: netCDF (xarray, e.g. :func:`lunarmap.simulate.render_block`),
+    ISIS cube, PDS3 image or GeoTIFF (:func:`lunarmap.io.raster.open_image`; special pixels are NaN).
 
     Read once per process (cached by path, size and modification time: a worker that matches an image
     in many pairs reads it once).
@@ -103,10 +104,23 @@ def read_pixels(path: str | Path) -> xr.DataArray:
 def _read_pixels(path: str, size: int, mtime: int) -> xr.DataArray:
     p = Path(path)
     try:
-        with xr.open_dataarray(p) as da:
+        if p.suffix.lower() in (".nc", ".nc4", ".netcdf"):
+            with xr.open_dataarray(p) as da:
+                da = da.load()
+        else:
+            # ISIS cubes, PDS3 images, GeoTIFF (lunarmap.io): special pixels are NaN
+            from ..io.raster import open_image
+
+            da = open_image(p)
+            if "band" in da.dims:
+                if da.sizes["band"] != 1:
+                    raise WorkflowError(f"image {p} has {da.sizes['band']} bands; give a single-band image")
+                da = da.isel(band=0, drop=True)
             da = da.load()
-    except (OSError, ValueError) as err:
-        raise WorkflowError(f"image {p} is not readable as a netCDF image: {err}") from None
+    except (OSError, ValueError, LunarmapError) as err:
+        if isinstance(err, WorkflowError):
+            raise
+        raise WorkflowError(f"image {p} is not readable: {type(err).__name__}: {err}") from None
     if da.ndim != 2:
         raise WorkflowError(f"image {p} must be 2-D (line, sample), got dims {da.dims}")
     return da
