@@ -299,7 +299,8 @@ def _manifest(model: BlockModel, images: dict[str, Any], params: dict[str, Any])
         "target": {"name": "MOON", "id": ids.MOON_ID, "frame": ids.MOON_FRAME, "radius_km": MOON_RADIUS_KM},
         "site": {"latitude_deg": model.site_latitude_deg, "longitude_deg": model.site_longitude_deg,
                  "extent_m": model.site_extent_m,
-                 "note": "every image footprint fits in the square of side extent_m centred on the site"},
+                 "note": "every image footprint fits in the square of side extent_m centred on the site"
+                 + (" (site 1 and its images; every site: sites)" if several else "")},
         **site,
         "instruments": cams,
         **orbits,
