@@ -525,3 +525,233 @@ def test_manifest_that_does_not_match_its_model_is_refused(tmp_path):
     (bm.folder / "block_mission.json").write_text("{not json")
     with pytest.raises(BlockMissionError, match="not a valid block-mission manifest"):
         sim.open_block_mission(bm.folder)
+
+
+# -- several sites per orbit ---------------------------------------------------------------------------
+
+SITE_KINDS = ("nac", "tc", "frame_a", "frame_b")
+
+
+@pytest.fixture(scope="module")
+def block2(tmp_path_factory) -> sim.BlockMission:
+    """Two sites 8 degrees of latitude apart, seen on two orbits: 16 images."""
+    return sim.write_block_mission(tmp_path_factory.mktemp("block2"), seed=0, orbits=2, sites=2)
+
+
+@pytest.fixture(scope="module")
+def isds2(block2):
+    return {kind: {n: image_support(block2.label(n), block2.metakernel(kind)) for n in block2.image_names}
+            for kind in ("truth", "navigation")}
+
+
+@pytest.fixture(scope="module")
+def cams2(isds2):
+    return {kind: {n: camera_from_isd(i) for n, i in d.items()} for kind, d in isds2.items()}
+
+
+def _latlon(xyz: np.ndarray) -> tuple[float, float]:
+    return float(np.degrees(np.arcsin(xyz[2] / np.linalg.norm(xyz)))), float(np.degrees(np.arctan2(xyz[1], xyz[0])))
+
+
+def test_two_sites_files_names_and_manifest(block2):
+    man = block2.manifest
+    expected = [f"s{s}_orbit{o}_{k}" for s in (1, 2) for o in (1, 2) for k in SITE_KINDS]
+    assert list(block2.image_names) == expected and block2.n_sites == 2
+    names = sorted(p.name for p in block2.folder.iterdir() if p.suffix != ".nc")
+    assert names == sorted([*SHARED_KERNELS, *TRUTH_KERNELS, *NAVIGATION_KERNELS, "truth.tm", "navigation.tm",
+                            "block_mission.json", *(f"{n}.lbl" for n in expected)])
+    assert man["parameters"]["sites"] == 2 and man["parameters"]["site_spacing_deg"] == -8.0
+    assert [s["latitude_deg"] for s in man["sites"]] == [57.0, 49.0]
+    assert man["sites"][1]["images"] == expected[8:] and man["site"]["latitude_deg"] == 57.0
+    for n in expected:
+        im = man["images"][n]
+        assert im["site"] == int(n[1]) and im["orbit"] == int(n[8])
+        assert abs(im["seconds_from_orbit_reference"]) < 6.0  # relative to its own site's pass
+        assert 0.9 < im["geometry"]["gsd_m"] < 1.1 and 20.0 < im["geometry"]["incidence_deg"] < 65.0
+    # one pass per (orbit, site), in time order; windows separated by slews; northbound: site 2 (south) first
+    passes = man["passes"]
+    assert [(p["orbit"], p["site"]) for p in passes] == [(1, 2), (1, 1), (2, 2), (2, 1)]
+    for a, b in zip(passes, passes[1:]):
+        assert b["window_et"][0] - a["window_et"][1] >= 20.0
+    for o in man["orbits"]:  # the navigation reference: midway between the orbit's two sites
+        mine = [p["reference_et"] for p in passes if p["orbit"] == o["orbit"]]
+        assert o["reference_et"] == pytest.approx(0.5 * sum(mine), abs=1e-6)
+        assert 140.0 < abs(mine[1] - mine[0]) < 160.0  # 8 degrees of a 113-minute orbit
+    # convergence only between images of one site
+    assert all(a[:2] == b[:2] for a, b in (k.split("|") for k in man["convergence_deg"]))
+    assert sim.open_block_mission(block2.folder).manifest == man
+    # site 1 of a two-site block is where the one-site block's site is
+    one = sim.build_block_model(0, orbits=2)
+    assert block2.model.site(1).longitude_deg == pytest.approx(one.site_longitude_deg, abs=1e-9)
+    assert block2.model.pass_of(1, 1).epoch == pytest.approx(one.passes[0].epoch, abs=1e-6)
+
+
+def test_two_sites_truth_kernels_reproduce_the_model(block2, isds2):
+    """Through image_support (every image) and SPICE directly between records, in every pass window.
+
+    Measured through image_support: positions 1.1e-3 mm, attitudes 1.3e-10 rad.
+    """
+    m = block2.model
+    worst_p = worst_a = 0.0
+    for n, isd in isds2["truth"].items():
+        eo = isd.exterior_orientation()
+        worst_p = max(worst_p, np.abs(eo.positions - m.position_body_fixed(isd.times)).max())
+        cam_id = block2.manifest["images"][n]["instrument_id"]
+        worst_a = max(worst_a, rotation_angle(eo.rotation_at(eo.times), m.sensor_to_body(cam_id, isd.times)).max())
+    assert worst_p < 1e-3 and worst_a < 1e-9
+    rng = np.random.default_rng(5)
+    kset = KernelSet.from_metakernel(block2.truth_metakernel)
+    with kernels(kset):
+        for p in m.passes:
+            ts = rng.uniform(p.start_et + 1, p.end_et - 1, 10) + 0.123
+            got = np.array([spiceypy.spkez(-990, t, "J2000", "NONE", 301)[0] for t in ts])
+            assert np.abs(got[:, :3] - m.state(ts)[:, :3]).max() < 1e-6  # km
+            c = np.array([spiceypy.pxform("J2000", "SIM_SC_BUS", t) for t in ts])
+            assert rotation_angle(c, m.bus_matrix(ts)).max() < 1e-9
+            nadir = np.array([m.nadir.matrix(t) for t in ts])
+            roll = Rotation.from_matrix(c @ np.swapaxes(nadir, 1, 2)).as_rotvec()
+            np.testing.assert_allclose(roll[:, 0], -np.radians(p.roll_deg), atol=1e-9)
+        # the attitude kernels cover exactly the pass windows (the slews between sites are gaps)
+        for ck in (block2.folder / TRUTH_KERNELS[1], block2.folder / NAVIGATION_KERNELS[1]):
+            cover = spiceypy.ckcov(str(ck), -990000, False, "INTERVAL", 0.0, "TDB")
+            got = np.array([spiceypy.wnfetd(cover, i) for i in range(spiceypy.wncard(cover))])
+            want = np.array(sorted([p.start_et, p.end_et] for p in m.passes))
+            np.testing.assert_allclose(got, want, atol=1e-3)
+
+
+def test_two_sites_navigation_errors_are_per_orbit(block2, isds2):
+    """NAVIGATION - TRUTH at every ISD epoch is the manifest's per-orbit model, about one epoch for both sites."""
+    man = block2.manifest
+    truth_set = KernelSet.from_metakernel(block2.truth_metakernel)
+    worst_p = worst_a = 0.0
+    for n in block2.image_names:
+        t_isd, n_isd = isds2["truth"][n], isds2["navigation"][n]
+        idx = np.unique(np.linspace(0, t_isd.times.size - 1, 5).astype(int))
+        et = t_isd.times[idx]
+        eo_t, eo_n = t_isd.exterior_orientation(), n_isd.exterior_orientation()
+        with kernels(truth_set):
+            bus_to_bf = np.array([spiceypy.pxform("SIM_SC_BUS", "IAU_MOON", t) for t in et])
+        for k, (i, t) in enumerate(zip(idx, et)):
+            dp, th = _manifest_errors(man, t)
+            worst_p = max(worst_p, np.abs(eo_n.positions[i] - eo_t.positions[i] - dp).max())
+            w = bus_to_bf[k] @ th
+            r_t, r_n = eo_t.rotation_at(eo_t.times[i]), eo_n.rotation_at(eo_n.times[i])
+            worst_a = max(worst_a, rotation_angle(r_n @ r_t.T, Rotation.from_rotvec(w).as_matrix()))
+        rec = man["images"][n]["navigation_error"]
+        np.testing.assert_allclose(rec["position_m"], _manifest_errors(man, rec["et"])[0], rtol=0, atol=1e-9)
+    assert worst_p < 1e-3 and worst_a < 1e-9
+    # the drifts act over the ~75 s from the orbit's reference to each site: the multi-site magnitudes keep
+    # the sites' errors of one orbit within tens of metres of each other
+    nav = man["navigation_errors"]
+    assert nav["magnitudes"]["position_drift_m_per_s"] == [0.02, 0.1]
+    for o in nav["orbits"]:
+        assert len(o["pass_windows_et"]) == 2
+        e = [np.array(man["images"][f"s{s}_orbit{o['orbit']}_nac"]["navigation_error"]["position_m"]) for s in (1, 2)]
+        assert 0.5 < np.linalg.norm(e[0] - e[1]) < 20.0  # measured 8.5 and 9.6 m (errors of 34-43 m)
+
+
+def test_two_sites_every_image_sees_its_site_and_no_other(block2, cams2):
+    """Truth cameras: each image centre on its site; no image of one site sees any of the other's footprints."""
+    m = block2.model
+    grids = {}
+    for n, cam in cams2["truth"].items():
+        im = block2.manifest["images"][n]
+        g = cam.image_to_ground(im["lines"] / 2, im["samples"] / 2, height=0.0)
+        tol = {"nac": 0.1, "tc": 15.0}.get(im["kind"], 120.0)  # measured 0.012 m, 4-8 m, 90-92 m
+        assert np.linalg.norm(g - m.site_xyz(site=im["site"])) < tol, n
+        lat, _ = _latlon(g)
+        assert lat == pytest.approx(block2.manifest["sites"][im["site"] - 1]["latitude_deg"], abs=0.01)
+        L, S = np.meshgrid(np.linspace(0.5, im["lines"] - 0.5, 9), np.linspace(0.5, im["samples"] - 0.5, 9))
+        grids[n] = cam.image_to_ground(L.ravel(), S.ravel(), height=0.0)
+    for a in block2.image_names:
+        for b in block2.image_names:
+            if a == b:
+                continue
+            la, sa = cams2["truth"][b].ground_to_image(grids[a], on_miss="nan")
+            seen = np.count_nonzero(np.isfinite(la) & np.isfinite(sa))
+            if a[:2] == b[:2]:
+                assert seen > 0, (a, b)  # images of one site overlap (so the test can fail)
+            else:
+                assert seen == 0, (a, b)
+    # rolled on every orbit, differently per site (each site sits differently between the tracks)
+    rolls = {(p.orbit, p.site): p.roll_deg for p in m.passes}
+    assert abs(rolls[1, 1] - rolls[2, 1]) > 15.0 and abs(rolls[1, 2] - rolls[2, 2]) > 15.0
+    assert abs(rolls[1, 1] - rolls[1, 2]) > 1.0  # measured: 10.1 / 12.1 and -10.1 / -12.1 degrees
+
+
+def test_two_sites_scenes_render_and_check_points(block2, tmp_path):
+    """Each image rendered from its own site's scene (a scene of another site would leave NaN pixels)."""
+    names = ["s1_orbit1_tc", "s1_orbit2_frame_b", "s2_orbit1_frame_a", "s2_orbit2_nac"]
+    out = render_block(block2, tmp_path, names=names, supersample=1, crop=32)
+    assert set(out.scenes) == {1, 2} and set(out.images) == set(names)
+    (d1, _), (d2, _) = out.scenes[1], out.scenes[2]
+    for dtm, site in ((d1, 1), (d2, 2)):
+        s = block2.model.site(site)
+        assert float(dtm["lat"].mean()) == pytest.approx(s.latitude_deg, abs=1e-3)
+        assert float(dtm["lon"].mean()) == pytest.approx(s.longitude_deg, abs=1e-3)
+    assert d1.shape != d2.shape or not np.allclose(d1.values, d2.values)  # independent scenes
+    for n, img in out.images.items():
+        assert np.all(np.isfinite(img.values)) and 60.0 < img.values.mean() < 200.0 and img.values.std() > 5.0, n
+        assert img.attrs["site"] == int(n[1])
+    for k in (1, 2):
+        on_disk = xr.open_dataarray(out.paths[f"dtm_s{k}"]).load()
+        np.testing.assert_array_equal(on_disk.values, (d1, d2)[k - 1].values)
+        assert out.paths[f"dtm_s{k}"].name == f"dtm_s{k}.nc"
+    assert "dtm" not in out.paths
+    # check points of site 2: on its DTM and seen by its images
+    cp = block_check_points(block2, 5, seed=1, site=2, dtm=d2)
+    assert list(cp["image"].values) == list(block2.site_image_names(2)) and cp.attrs["site"] == 2
+    from lunarmap.camera.intersect import DtmSampler
+
+    np.testing.assert_allclose(cp["height"].values, DtmSampler(d2)(cp["longitude"].values, cp["latitude"].values),
+                               atol=1e-6)
+    assert np.all(np.abs(cp["latitude"].values - 49.0) < 0.05)
+    with pytest.raises(InvalidInputError, match="2 sites"):
+        block_check_points(block2, 3)
+    with pytest.raises(InvalidInputError, match="one site"):
+        block_check_points(block2, 3, names=["s1_orbit1_nac", "s2_orbit1_nac"])
+    with pytest.raises(InvalidInputError, match="not site 1"):
+        block_check_points(block2, 3, names=["s2_orbit1_nac"], site=1)
+    with pytest.raises(InvalidInputError, match="site must be"):
+        block_scene(block2, 3)
+
+
+@pytest.mark.parametrize("kwargs", [
+    {"sites": 0}, {"sites": 9}, {"sites": 2.0}, {"sites": 2, "site_spacing_deg": 3.0},
+    {"sites": 2, "site_spacing_deg": 25.0}, {"sites": 2, "site_spacing_deg": float("nan")},
+    {"sites": 4, "site_spacing_deg": -20.0},  # 57, 37, 17, -3: the last site is too near the equator
+    {"sites": 3, "site_spacing_deg": 10.0},   # 57, 67, 77: too near the pole
+])
+def test_bad_site_arguments_write_nothing(tmp_path, kwargs):
+    dest = tmp_path / "new"
+    with pytest.raises(InvalidInputError, match="site"):
+        sim.write_block_mission(dest, **kwargs)
+    assert not dest.exists()
+
+
+@pytest.mark.slow
+def test_two_site_workflow_run(tmp_path):
+    """The whole chain on 2 sites x 2 orbits x NAC: per-site control, navigation groups across the sites."""
+    from lunarmap.workflows import load_config, run, write_example
+
+    names = ["s1_orbit1_nac", "s1_orbit2_nac", "s2_orbit1_nac", "s2_orbit2_nac"]
+    cfg = write_example(tmp_path, quick=True, sites=2, names=names, n_control=4, n_check=8)
+    conf = load_config(cfg)
+    assert conf.dtm is None and "4 images over 2 sites" in conf.name
+    assert [im.group for im in conf.images] == ["1-nac", "2-nac", "1-nac", "2-nac"]  # per (orbit, camera)
+    res = run(cfg, scheduler="sync", report=False)
+    s = res.summary
+    before, after = np.array(s["check_rms_before_m"]), np.array(s["check_rms_after_m"])
+    # measured: 3-D check RMS 42.9 m before, 1.5 m after; normalized RMS 1.05
+    assert np.sqrt(np.sum(before ** 2)) > 10 * np.sqrt(np.sum(after ** 2)) and s["converged"]
+    assert 0.5 < s["check_normalized_rms"] < 1.5
+    assert res.counts()["match"] == (6, 0)
+    from lunarmap.adjust import read_network
+
+    net = read_network(tmp_path / "points.nc")  # a datum for each site's sub-block
+    assert {(str(p)[:4], str(t)) for p, t in zip(net.point_id, net.point_type)} == \
+        {("s1_C", "control"), ("s2_C", "control"), ("s1_K", "check"), ("s2_K", "check")}
+    notes = {r.item: r.note for r in res.done if r.step == "match"}
+    for item, note in notes.items():  # pairs across the sites are skipped, pairs within a site matched
+        a, b = item.split(" -> ")
+        assert note.startswith("skipped") == (a[:2] != b[:2]), (item, note)

@@ -2,16 +2,18 @@
 
 For a block written by :func:`lunarmap.synthetic.write_block_mission`:
 
-* :func:`block_scene` - the site's DTM and albedo (craters over rolling
-  terrain, band-limited albedo), reproducible from the block's seed;
+* :func:`block_scene` - a site's DTM and albedo (craters over rolling
+  terrain, band-limited albedo), reproducible from the block's seed (one
+  scene per site of a block of several sites);
 * :func:`block_cameras` - the rigorous camera of every image from the TRUTH
   or the NAVIGATION kernels (labels + IKs through the generic driver);
 * :func:`render_block` - every image rendered through its TRUTH camera with
   :func:`~lunarmap.simulate.render_image` (DTM intersection, supersampling,
   Lambert shading from the kernels' Sun direction, Gaussian noise) and
   written as netCDF, with the DTM;
-* :func:`block_check_points` - ground points on the true DTM inside every
-  image, with their true coordinates and noisy image measurements.
+* :func:`block_check_points` - ground points on the true DTM of a site inside
+  every image of that site, with their true coordinates and noisy image
+  measurements.
 
 Scene scales (chosen for the block's 1 m pixels): DTM spacing 2 m (the
 renderer's normals are central differences over one spacing), rolling terrain
@@ -48,7 +50,7 @@ from ..synthetic.block_writing import BlockMission, open_block_mission
 from .render import render_image
 from .terrain import synthetic_albedo, synthetic_dtm
 
-__all__ = ["block_scene", "block_cameras", "render_block", "RenderedBlock", "block_check_points",
+__all__ = ["block_scene", "block_cameras", "render_block", "RenderedBlock", "block_check_points", "block_dtm_file",
            "DTM_SPACING_M", "ALBEDO_SPACING_M", "ALBEDO_FEATURE_M", "ALBEDO_BLUR_M", "DTM_FILE"]
 
 #: DTM node spacing, m.
@@ -58,7 +60,7 @@ ALBEDO_SPACING_M = 0.5
 ALBEDO_FEATURE_M = 3.0
 #: Sigma of the Gaussian anti-aliasing filter of the albedo, m.
 ALBEDO_BLUR_M = 0.5
-#: File name of the DTM written by :func:`render_block`.
+#: File name of the DTM written by :func:`render_block` (one site; see :func:`block_dtm_file`).
 DTM_FILE = "dtm.nc"
 
 Array = NDArray[np.float64]
@@ -80,24 +82,56 @@ def _names(mission: BlockMission, names: Sequence[str] | None) -> list[str]:
     return list(dict.fromkeys(names))
 
 
-def block_scene(mission: BlockMission | str | os.PathLike[str]) -> tuple[xr.DataArray, xr.DataArray]:
-    """The site's DTM (heights above the 1737.4 km sphere, m) and albedo, both on ``lat`` x ``lon`` (degrees).
+def _site(bm: BlockMission, site: Any) -> int:
+    if isinstance(site, bool) or not isinstance(site, (int, np.integer)) or not 1 <= site <= bm.model.n_sites:
+        raise InvalidInputError(f"site must be an integer from 1 to {bm.model.n_sites} (the block's sites), "
+                                f"got {site!r}")
+    return int(site)
 
-    Both cover the square of side ``manifest['site']['extent_m']`` about the
-    site (every image footprint with a 300 m border) and depend only on the
-    block (its seed and site).
+
+def _site_seeds(seed: int, site: int) -> tuple[int, int]:
+    """Seeds of a site's DTM and albedo: site 1 keeps the one-site block's ``(seed, seed + 1)``."""
+    if site == 1:
+        return seed, seed + 1
+    a, b = np.random.SeedSequence([seed, site]).generate_state(2)
+    return int(a), int(b)
+
+
+def block_dtm_file(mission: BlockMission | str | os.PathLike[str], site: int = 1) -> str:
+    """File name of a site's DTM written by :func:`render_block`: ``dtm.nc``, or ``dtm_s<site>.nc`` with several."""
+    bm = _mission(mission)
+    site = _site(bm, site)
+    return DTM_FILE if bm.model.n_sites == 1 else f"dtm_s{site}.nc"
+
+
+def block_scene(mission: BlockMission | str | os.PathLike[str], site: int = 1) -> tuple[xr.DataArray, xr.DataArray]:
+    """A site's DTM (heights above the 1737.4 km sphere, m) and albedo, both on ``lat`` x ``lon`` (degrees).
+
+    Both cover the square of side ``extent_m`` about the site (every
+    footprint of its images with a 300 m border; ``manifest['site']`` for
+    site 1, ``manifest['sites']`` for all) and depend only on the block (its
+    seed) and the site. Different sites have different, independent scenes.
+
+    Parameters
+    ----------
+    mission : BlockMission or path-like
+    site : int
+        1-based site.
     """
     bm = _mission(mission)
-    m = bm.model
-    lon0, lat0, extent = m.site_longitude_deg, m.site_latitude_deg, m.site_extent_m
+    s = bm.model.site(_site(bm, site))
+    lon0, lat0, extent = s.longitude_deg, s.latitude_deg, s.extent_m
+    seed_dtm, seed_albedo = _site_seeds(bm.model.seed, s.site)
     dtm = synthetic_dtm(lon0, lat0, extent, DTM_SPACING_M, relief=3.0, wavelength=20.0 * DTM_SPACING_M,
-                        crater_density=0.01, d_min=8.0 * DTM_SPACING_M, d_max=200.0, seed=m.seed,
+                        crater_density=0.01, d_min=8.0 * DTM_SPACING_M, d_max=200.0, seed=seed_dtm,
                         radius=MOON_RADIUS)
     albedo = synthetic_albedo(lon0, lat0, extent, ALBEDO_SPACING_M, feature_size=ALBEDO_FEATURE_M,
-                              seed=m.seed + 1, radius=MOON_RADIUS)
+                              seed=seed_albedo, radius=MOON_RADIUS)
     albedo = albedo.copy(data=gaussian_filter(albedo.values, ALBEDO_BLUR_M / ALBEDO_SPACING_M, mode="nearest"))
     albedo.attrs["low_pass_sigma_m"] = ALBEDO_BLUR_M
     dtm.attrs["block_site"] = f"{lat0:.6f} N {lon0:.6f} E"
+    if bm.model.n_sites > 1:
+        dtm.attrs["site"] = albedo.attrs["site"] = s.site
     return dtm, albedo
 
 
@@ -134,11 +168,14 @@ class RenderedBlock:
     images : dict
         Image name -> float32 ``xarray.DataArray`` (``line``, ``sample``; CSM pixel centres), grey levels.
     dtm, albedo : xarray.DataArray
-        The scene.
+        The scene (of the first rendered image's site).
     paths : dict
-        Image name (and ``"dtm"``) -> written netCDF file (empty when nothing was written).
+        Image name -> written netCDF file, and the DTMs: ``"dtm"`` (one site) or ``"dtm_s<k>"`` per rendered
+        site (several sites); empty when nothing was written.
     seconds : float
         Wall-clock time of the rendering alone, s.
+    scenes : dict
+        Site -> ``(dtm, albedo)`` of every rendered site.
     """
 
     images: dict[str, xr.DataArray]
@@ -146,6 +183,7 @@ class RenderedBlock:
     albedo: xr.DataArray
     paths: dict[str, Path] = field(default_factory=dict)
     seconds: float = 0.0
+    scenes: dict[int, tuple[xr.DataArray, xr.DataArray]] = field(default_factory=dict)
 
 
 def _crop_window(cam: Any, crop: int | None) -> tuple[int, int, int, int] | None:
@@ -162,7 +200,7 @@ def render_block(mission: BlockMission | str | os.PathLike[str], output: str | o
                  chunks: int = 128) -> RenderedBlock:
     """Render the block's images through their TRUTH cameras and write them as netCDF.
 
-    Each image is :func:`~lunarmap.simulate.render_image` of the block scene
+    Each image is :func:`~lunarmap.simulate.render_image` of its site's scene
     (:func:`block_scene`) with Lambert shading from the Sun direction in the
     kernels (``sun="eo"``), grey level ``255 * albedo * shading`` plus
     Gaussian noise of ``noise_sigma`` grey levels (seeded per image).
@@ -171,8 +209,9 @@ def render_block(mission: BlockMission | str | os.PathLike[str], output: str | o
     ----------
     mission : BlockMission or path-like
     output : path-like, optional
-        Folder for ``<image>.nc`` and ``dtm.nc``; the block's folder by default
-        (it must exist).
+        Folder for ``<image>.nc`` and the DTM of every rendered site (``dtm.nc``,
+        or ``dtm_s<k>.nc`` with several sites: :func:`block_dtm_file`); the
+        block's folder by default (it must exist).
     names : sequence of str, optional
         Images to render (default: all).
     supersample : int
@@ -204,13 +243,15 @@ def render_block(mission: BlockMission | str | os.PathLike[str], output: str | o
     out_dir = Path(output).expanduser() if output is not None else bm.folder
     if write and not out_dir.is_dir():
         raise BlockMissionError(f"output folder {out_dir} does not exist")
-    dtm, albedo = block_scene(bm)
+    site_of = {n: bm.model.image(n).site for n in sel}
+    scenes = {k: block_scene(bm, k) for k in dict.fromkeys(site_of.values())}
+    samplers = {k: DtmSampler(dtm) for k, (dtm, _) in scenes.items()}
     cams = block_cameras(bm, "truth", sel)
-    sampler = DtmSampler(dtm)
     lazy = {}
     for n in sel:
         # the noise of an image depends on the block and the image, not on which others are rendered
         seed = bm.model.seed * 1000 + bm.image_names.index(n)
+        sampler, albedo = samplers[site_of[n]], scenes[site_of[n]][1]
         lazy[n] = render_image(cams[n], sampler, albedo, supersample=int(supersample), sun="eo", gain=255.0,
                                noise_sigma=float(noise_sigma), seed=seed, chunks=chunks,
                                window=_crop_window(cams[n], crop), name=n)
@@ -222,19 +263,25 @@ def render_block(mission: BlockMission | str | os.PathLike[str], output: str | o
         im = bm.manifest["images"][n]
         img.attrs.update({"image": n, "orbit": im["orbit"], "camera_name": im["camera"], "label": im["label"],
                           "kernels": "truth.tm", "block_seed": bm.model.seed})
+        if bm.model.n_sites > 1:
+            img.attrs["site"] = site_of[n]
         images[n] = img
     paths: dict[str, Path] = {}
     if write:
         for n, img in images.items():
             paths[n] = atomic_write(out_dir / f"{n}.nc", lambda tmp, a=img: a.to_netcdf(tmp, engine="netcdf4"))
-        paths["dtm"] = atomic_write(out_dir / DTM_FILE, lambda tmp: dtm.to_netcdf(tmp, engine="netcdf4"))
-    return RenderedBlock(images, dtm, albedo, paths, seconds)
+        for k, (dtm, _) in scenes.items():
+            f = block_dtm_file(bm, k)
+            paths[f[:-3]] = atomic_write(out_dir / f, lambda tmp, d=dtm: d.to_netcdf(tmp, engine="netcdf4"))
+    first = scenes[site_of[sel[0]]]
+    return RenderedBlock(images, first[0], first[1], paths, seconds, scenes)
 
 
 def block_check_points(mission: BlockMission | str | os.PathLike[str], n: int = 20, *, sigma_px: float = 0.3,
                        seed: int = 0, names: Sequence[str] | None = None, dtm: xr.DataArray | None = None,
-                       margin_px: float = 20.0, cameras: dict[str, Any] | None = None) -> xr.Dataset:
-    """Check points: ground points on the true DTM seen by every image, with simulated measurements.
+                       margin_px: float = 20.0, cameras: dict[str, Any] | None = None,
+                       site: int | None = None) -> xr.Dataset:
+    """Check points: ground points on a site's true DTM seen by every image, with simulated measurements.
 
     Points are drawn uniformly over the site and kept when every image sees
     them at least ``margin_px`` inside its borders and not hidden by the
@@ -252,13 +299,17 @@ def block_check_points(mission: BlockMission | str | os.PathLike[str], n: int = 
     seed : int
         Seed of the point positions and the noise.
     names : sequence of str, optional
-        The images that must all see each point (default: every image).
+        The images that must all see each point, all of one site (default:
+        every image of ``site``).
     dtm : xarray.DataArray, optional
-        The true DTM (default: :func:`block_scene`'s).
+        The site's true DTM (default: :func:`block_scene`'s).
     margin_px : float
         Minimum distance from the image borders, pixels.
     cameras : dict, optional
         Truth cameras by image name (default: :func:`block_cameras` ``"truth"``).
+    site : int, optional
+        1-based site (default: the site of ``names``, or site 1 of a one-site
+        block; a block of several sites needs ``site`` or ``names``).
 
     Returns
     -------
@@ -272,10 +323,12 @@ def block_check_points(mission: BlockMission | str | os.PathLike[str], n: int = 
     Raises
     ------
     InvalidInputError
-        Bad arguments, or the images have too small a common overlap for ``n`` points.
+        Bad arguments (images of several sites, or of another site than ``site``), or the images have
+        too small a common overlap for ``n`` points.
     """
     bm = _mission(mission)
-    sel = _names(bm, names)
+    site = _check_site(bm, names, site)
+    sel = _names(bm, names) if names is not None else list(bm.model.site_image_names(site))
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= 100000:
         raise InvalidInputError(f"n must be an integer from 1 to 100000, got {n!r}")
     if not (isinstance(sigma_px, (int, float, np.floating)) and np.isfinite(sigma_px) and sigma_px >= 0):
@@ -288,17 +341,17 @@ def block_check_points(mission: BlockMission | str | os.PathLike[str], n: int = 
     missing = [s for s in sel if s not in cams]
     if missing:
         raise InvalidInputError(f"no camera given for image(s) {missing}")
-    dtm = dtm if dtm is not None else block_scene(bm)[0]
+    dtm = dtm if dtm is not None else block_scene(bm, site)[0]
     sampler = DtmSampler(dtm)
-    m = bm.model
+    st = bm.model.site(site)
     rng = np.random.default_rng(int(seed))
-    half = 0.5 * m.site_extent_m
-    lat0, lon0 = np.radians(m.site_latitude_deg), m.site_longitude_deg
+    half = 0.5 * st.extent_m
+    lat0, lon0 = np.radians(st.latitude_deg), st.longitude_deg
     kept: list[Array] = []
     n_kept = 0
     for _ in range(200):
         east, north = rng.uniform(-half, half, (2, max(64, 4 * n)))
-        lat = m.site_latitude_deg + np.degrees(north / MOON_RADIUS)
+        lat = st.latitude_deg + np.degrees(north / MOON_RADIUS)
         lon = lon0 + np.degrees(east / (MOON_RADIUS * np.cos(lat0)))
         h = sampler(lon, lat)
         ok = np.isfinite(h)
@@ -352,5 +405,24 @@ def block_check_points(mission: BlockMission | str | os.PathLike[str], n: int = 
         },
         coords={"image": ("image", np.asarray(sel, dtype=str)), "axis": ["x", "y", "z"]},
         attrs={"pixel_convention": "CSM: centre of the first pixel at (0.5, 0.5)", "sigma_px": float(sigma_px),
-               "seed": int(seed), "kernels": "truth", "source": "lunarmap.simulate.block_check_points"},
+               "seed": int(seed), "kernels": "truth", "source": "lunarmap.simulate.block_check_points",
+               **({"site": site} if bm.model.n_sites > 1 else {})},
     )
+
+
+def _check_site(bm: BlockMission, names: Sequence[str] | None, site: int | None) -> int:
+    """The one site that ``names`` and ``site`` designate (named errors for mixtures and omissions)."""
+    if site is not None:
+        site = _site(bm, site)
+    if names is None:
+        if site is None:
+            if bm.model.n_sites > 1:
+                raise InvalidInputError(f"the block has {bm.model.n_sites} sites, whose images do not overlap: "
+                                        f"give site= (1 to {bm.model.n_sites}) or names= of one site")
+            return 1
+        return site
+    sites = {bm.model.image(nm).site for nm in _names(bm, names)}
+    if len(sites) > 1 or (site is not None and sites != {site}):
+        raise InvalidInputError(f"check points need images of one site: {list(names)} are of sites {sorted(sites)}"
+                                + (f", not site {site}" if site is not None else ""))
+    return sites.pop()

@@ -8,11 +8,12 @@ SPKs, one CK), ISIS-like labels of five predefined images and a
 :func:`write_block_mission` writes a second scenario: an imaging block of one
 site seen on consecutive orbits by three cameras (NAC-like and Kaguya-TC-like
 pushbrooms, a Clementine-like frame camera), with TRUTH and NAVIGATION
-kernel sets (the latter with per-orbit position and attitude errors);
+kernel sets (the latter with per-orbit position and attitude errors), or
+of several sites along each orbit's ground track (``sites=n``);
 :func:`build_block_model` is its numpy model.
 """
 
-from .block import BlockImagePlan, BlockModel, BlockPass, block_geometry, build_block_model
+from .block import BlockImagePlan, BlockModel, BlockPass, BlockSite, block_geometry, build_block_model
 from .block_cameras import BLOCK_CAMERAS, BLOCK_FRAME, BLOCK_NAC, BLOCK_TC, BlockCameraSpec
 from .block_writing import (BLOCK_MANIFEST_NAME, NAVIGATION_METAKERNEL, TRUTH_METAKERNEL, BlockMission,
                             open_block_mission, write_block_mission)
@@ -33,6 +34,7 @@ __all__ = [
     "KW_DISTORTION_MODEL", "KW_LIGHTTIME_CORRECTION", "IMAGE_NAMES", "KERNEL_FILES", "METAKERNEL_NAME",
     "MANIFEST_NAME",
     "write_block_mission", "open_block_mission", "BlockMission", "build_block_model", "BlockModel", "BlockPass",
-    "BlockImagePlan", "block_geometry", "BlockCameraSpec", "BLOCK_NAC", "BLOCK_TC", "BLOCK_FRAME", "BLOCK_CAMERAS",
+    "BlockSite", "BlockImagePlan", "block_geometry", "BlockCameraSpec", "BLOCK_NAC", "BLOCK_TC", "BLOCK_FRAME",
+    "BLOCK_CAMERAS",
     "NavigationErrorSpec", "NavigationErrors", "BLOCK_MANIFEST_NAME", "TRUTH_METAKERNEL", "NAVIGATION_METAKERNEL",
 ]

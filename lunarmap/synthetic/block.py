@@ -30,6 +30,22 @@ ground-track velocity) with the same slow wobble as the single-image mission,
 turned by the pass's roll (constant over the pass). Attitude kernels cover
 only the passes (:data:`PASS_HALF_WIDTH` seconds either side of ``t_o``).
 
+Several sites (``sites=n``, up to :data:`MAX_SITES`): site 1 is the site
+above; site ``k`` lies ``(k - 1) * site_spacing_deg`` degrees of latitude
+from it (default :data:`SITE_SPACING_DEG`, southward, so about 150 s of
+flight apart), placed relative to the tracks at its own latitude exactly as
+site 1 is. On every orbit the bus points the NAC at each site in turn with
+the roll that site needs, constant over a window of
+:data:`MULTI_SITE_HALF_WIDTH` seconds either side of the site's reference
+epoch, and slews between sites outside the windows (the attitude kernels
+have gaps there). Every site is seen by the same four images per orbit
+(names ``s<k>_orbit<o>_<kind>``); sites are hundreds of kilometres apart, so
+images of different sites never overlap. The navigation errors stay per
+orbit (one offset and drift per orbit, about one reference epoch midway
+between the orbit's first and last site); their drifts then act over
+minutes, so the default magnitudes for several sites are
+:data:`MULTI_SITE_NAVIGATION` (drifts ten times smaller).
+
 Everything here is numpy; :mod:`.block_writing` writes the kernels.
 """
 
@@ -55,8 +71,9 @@ from .nav_errors import NavigationErrors, NavigationErrorSpec, draw_navigation_e
 from .orbit import KeplerOrbit
 
 __all__ = [
-    "BlockImagePlan", "BlockPass", "BlockModel", "build_block_model", "block_geometry", "SITE_LATITUDE_DEG",
-    "SUN_OFFSET_DEG",
+    "BlockImagePlan", "BlockPass", "BlockSite", "BlockModel", "build_block_model", "block_geometry",
+    "SITE_LATITUDE_DEG", "SUN_OFFSET_DEG", "MAX_SITES", "SITE_SPACING_DEG", "MULTI_SITE_HALF_WIDTH",
+    "MIN_SLEW_S", "MULTI_SITE_NAVIGATION", "image_name", "image_footprint",
     "SITE_TRACK_OFFSET_M", "PASS_HALF_WIDTH", "BLOCK_ORBITS", "PUSHBROOM_LINES", "FRAME_ADVANCE",
     "TRUTH_SPK_STEP", "TRUTH_CK_STEP", "NAV_SPK_STEP", "NAV_CK_STEP", "SPK_MARGIN",
 ]
@@ -84,6 +101,19 @@ NAV_SPK_STEP = 1.0
 NAV_CK_STEP = 0.25
 #: Truth SPK coverage beyond the first and last pass, s.
 SPK_MARGIN = 600.0
+#: Most sites per block.
+MAX_SITES = 8
+#: Default latitude step from one site to the next, degrees (negative: southward; about 150 s of flight).
+SITE_SPACING_DEG = -8.0
+#: Half-width of each pass window of a block of several sites (constant roll, kernel coverage), s.
+MULTI_SITE_HALF_WIDTH = 45.0
+#: Shortest gap between the pass windows of consecutive sites (the slew), s.
+MIN_SLEW_S = 20.0
+#: Default navigation errors of a block of several sites: the single-site defaults with ten times smaller
+#: drifts (they act over the minutes between sites, not the seconds between images of one site: at most
+#: about 25 m and 25 urad at the outer sites of four, as much as the offsets).
+MULTI_SITE_NAVIGATION = NavigationErrorSpec(position_drift_m_per_s=(0.02, 0.1),
+                                            attitude_drift_rad_per_s=(0.02e-6, 0.1e-6))
 
 _KINDS = ("nac", "tc", "frame_a", "frame_b")
 Array = NDArray[np.float64]
@@ -117,6 +147,11 @@ def _east_north(lon_deg: float, lat_deg: float) -> tuple[Array, Array]:
     return east, north
 
 
+def image_name(site: int, orbit: int, kind: str, sites: int) -> str:
+    """An image's name: ``orbit<o>_<kind>`` in a one-site block, ``s<site>_orbit<o>_<kind>`` otherwise."""
+    return f"orbit{orbit}_{kind}" if sites == 1 else f"s{site}_orbit{orbit}_{kind}"
+
+
 @dataclass(frozen=True)
 class BlockImagePlan(ImageTiming):
     """One image of the block (planned times; the manifest has the label times).
@@ -124,7 +159,7 @@ class BlockImagePlan(ImageTiming):
     Parameters
     ----------
     name : str
-        ``orbit<k>_<kind>``; the label is ``<name>.lbl``.
+        ``orbit<k>_<kind>`` (``s<site>_orbit<k>_<kind>`` with several sites); the label is ``<name>.lbl``.
     camera : BlockCameraSpec
     orbit : int
         1-based orbit number.
@@ -137,6 +172,8 @@ class BlockImagePlan(ImageTiming):
         Pushbroom line period, s (whole nanoseconds).
     exposure : float or None
         Frame exposure, s.
+    site : int
+        1-based site the image sees.
     """
 
     name: str
@@ -147,23 +184,26 @@ class BlockImagePlan(ImageTiming):
     center_et: float
     line_time: float | None
     exposure: float | None
-
+    site: int = 1
 
 
 @dataclass(frozen=True)
 class BlockPass:
-    """One pass over the site.
+    """One pass over a site.
 
     Parameters
     ----------
     orbit : int
         1-based orbit number.
     epoch : float
-        ``t_o``: the NAC boresight meets the site (height 0), ET.
+        The NAC boresight meets the site (height 0), ET (``t_o`` of a one-site block).
     roll_deg : float
         Bus roll about its +x axis during the pass, degrees.
     start_et, end_et : float
-        The pass window (``t_o -/+`` :data:`PASS_HALF_WIDTH`).
+        The pass window (``epoch -/+`` :data:`PASS_HALF_WIDTH`, or :data:`MULTI_SITE_HALF_WIDTH` with
+        several sites).
+    site : int
+        1-based site.
     """
 
     orbit: int
@@ -171,6 +211,27 @@ class BlockPass:
     roll_deg: float
     start_et: float
     end_et: float
+    site: int = 1
+
+
+@dataclass(frozen=True)
+class BlockSite:
+    """One site of the block.
+
+    Parameters
+    ----------
+    site : int
+        1-based number.
+    latitude_deg, longitude_deg : float
+        The site (planetocentric), degrees.
+    extent_m : float
+        Side of the square around the site that every footprint of its images fits in, m.
+    """
+
+    site: int
+    latitude_deg: float
+    longitude_deg: float
+    extent_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -182,9 +243,9 @@ class BlockModel:
     seed : int
     orbits : int
     site_latitude_deg, site_longitude_deg : float
-        The site, degrees.
+        The site (site 1), degrees.
     site_extent_m : float
-        Side of the square around the site that every image footprint fits in, m.
+        Side of the square around the site (site 1) that every footprint of its images fits in, m.
     start_et, end_et : float
         Truth SPK coverage, ET.
     sclk_zero_et : float
@@ -197,6 +258,11 @@ class BlockModel:
     images : tuple of BlockImagePlan
     navigation : NavigationErrors
     navigation_spec : NavigationErrorSpec
+    cameras : tuple of BlockCameraSpec
+    sites : tuple of BlockSite
+        Every site (site 1 first).
+    site_spacing_deg : float
+        Latitude step between consecutive sites, degrees (0 with one site).
     """
 
     seed: int
@@ -215,6 +281,8 @@ class BlockModel:
     navigation: NavigationErrors
     navigation_spec: NavigationErrorSpec
     cameras: tuple[BlockCameraSpec, ...] = field(default=BLOCK_CAMERAS)
+    sites: tuple[BlockSite, ...] = ()
+    site_spacing_deg: float = 0.0
 
     # -- truth -------------------------------------------------------------------
     def state(self, et: ArrayLike) -> Array:
@@ -346,9 +414,35 @@ class BlockModel:
         ticks = round((et - self.sclk_zero_et) * textkernels.SCLK_MODULI[1])
         return self.sclk_zero_et + ticks / textkernels.SCLK_MODULI[1]
 
-    def site_xyz(self, height: float = 0.0) -> Array:
-        """The site, body-fixed metres, at ``height`` metres above the reference sphere."""
-        return _lonlat_to_xyz(self.site_longitude_deg, self.site_latitude_deg, MOON_RADIUS_KM * 1000.0 + height)
+    @property
+    def n_sites(self) -> int:
+        return max(1, len(self.sites))
+
+    def site(self, site: int = 1) -> BlockSite:
+        """Site ``site`` (1-based)."""
+        for s in self.sites:
+            if s.site == site:
+                return s
+        if site == 1 and not self.sites:  # a model under construction
+            return BlockSite(1, self.site_latitude_deg, self.site_longitude_deg, self.site_extent_m)
+        raise InvalidInputError(f"no site {site!r} in the block; it has sites 1 to {self.n_sites}")
+
+    def site_xyz(self, height: float = 0.0, site: int = 1) -> Array:
+        """Site ``site``, body-fixed metres, at ``height`` metres above the reference sphere."""
+        s = self.site(site)
+        return _lonlat_to_xyz(s.longitude_deg, s.latitude_deg, MOON_RADIUS_KM * 1000.0 + height)
+
+    def pass_of(self, orbit: int, site: int = 1) -> BlockPass:
+        """The pass of ``orbit`` over ``site``."""
+        for p in self.passes:
+            if p.orbit == orbit and p.site == site:
+                return p
+        raise InvalidInputError(f"no pass of orbit {orbit!r} over site {site!r} in the block")
+
+    def site_image_names(self, site: int) -> tuple[str, ...]:
+        """The images of one site, in block order."""
+        self.site(site)
+        return tuple(im.name for im in self.images if im.site == site)
 
     def boresight_ground(self, naif_id: int, et: ArrayLike, look: ArrayLike = (0.0, 0.0, 1.0)) -> Array:
         """Where a sensor-frame look vector meets the reference sphere, body-fixed m (truth, no distortion)."""
@@ -376,19 +470,40 @@ def _latitude_crossing(orbit: KeplerOrbit, lat_deg: float, revolution: int, star
     return float(brentq(f, guess - 150.0, guess + 150.0, xtol=1e-7, rtol=1e-15))
 
 
-def _check_args(seed: Any, orbits: Any, latitude: Any) -> None:
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+def _is_int(v: Any) -> bool:
+    return not isinstance(v, bool) and isinstance(v, (int, np.integer))
+
+
+def _is_number(v: Any) -> bool:
+    return not isinstance(v, bool) and isinstance(v, (int, float, np.integer, np.floating)) and bool(np.isfinite(v))
+
+
+def _check_args(seed: Any, orbits: Any, latitude: Any, sites: Any = 1, spacing: Any = SITE_SPACING_DEG) -> None:
+    if not _is_int(seed) or seed < 0:
         raise InvalidInputError(f"seed must be a non-negative integer, got {seed!r}")
-    if isinstance(orbits, bool) or not isinstance(orbits, (int, np.integer)) or not 2 <= orbits <= 4:
+    if not _is_int(orbits) or not 2 <= orbits <= 4:
         raise InvalidInputError(f"orbits must be an integer from 2 to 4, got {orbits!r}")
-    if isinstance(latitude, bool) or not isinstance(latitude, (int, float, np.floating)) \
-            or not np.isfinite(latitude) or not 10.0 <= abs(latitude) <= 75.0:
+    if not _is_number(latitude) or not 10.0 <= abs(latitude) <= 75.0:
         raise InvalidInputError(f"site latitude must be a number with 10 <= |latitude| <= 75 degrees "
                                 f"(consecutive tracks must stay within ~30 km), got {latitude!r}")
+    if not _is_int(sites) or not 1 <= sites <= MAX_SITES:
+        raise InvalidInputError(f"sites must be an integer from 1 to {MAX_SITES}, got {sites!r}")
+    if sites > 1:
+        if not _is_number(spacing) or not 6.0 <= abs(spacing) <= 20.0:
+            raise InvalidInputError(f"site_spacing_deg must be a number with 6 <= |spacing| <= 20 degrees "
+                                    f"(pass windows of {MULTI_SITE_HALF_WIDTH:g} s and a slew between sites), "
+                                    f"got {spacing!r}")
+        lats = [float(latitude) + k * float(spacing) for k in range(int(sites))]
+        bad = [lat for lat in lats if not 10.0 <= abs(lat) <= 75.0]
+        if bad:
+            raise InvalidInputError(f"site latitudes {[round(v, 6) for v in lats]} (site_latitude_deg "
+                                    f"{latitude!r}, site_spacing_deg {spacing!r}, {sites} sites) leave "
+                                    f"10 <= |latitude| <= 75 degrees at {bad}")
 
 
 def build_block_model(seed: int = 0, *, orbits: int = BLOCK_ORBITS, site_latitude_deg: float = SITE_LATITUDE_DEG,
-                      navigation: NavigationErrorSpec | None = None) -> BlockModel:
+                      navigation: NavigationErrorSpec | None = None, sites: int = 1,
+                      site_spacing_deg: float = SITE_SPACING_DEG) -> BlockModel:
     """The truth and navigation model of the imaging block (no files, no SPICE).
 
     Parameters
@@ -399,19 +514,33 @@ def build_block_model(seed: int = 0, *, orbits: int = BLOCK_ORBITS, site_latitud
     orbits : int
         Consecutive orbits over the site, 2 to 4.
     site_latitude_deg : float
-        Latitude of the site, degrees (``10 <= |lat| <= 75``).
+        Latitude of the site (site 1), degrees (``10 <= |lat| <= 75``).
     navigation : NavigationErrorSpec, optional
-        Magnitudes of the navigation errors (defaults: see the class).
+        Magnitudes of the navigation errors (defaults: see the class; with
+        several sites :data:`MULTI_SITE_NAVIGATION`).
+    sites : int
+        Sites along the ground track, 1 to :data:`MAX_SITES`; each is seen on
+        every orbit by the same four images.
+    site_spacing_deg : float
+        Latitude of site ``k + 1`` minus that of site ``k``, degrees
+        (``6 <= |spacing| <= 20``; ignored with one site). Every site must
+        satisfy ``10 <= |lat| <= 75``.
 
     Returns
     -------
     BlockModel
     """
-    _check_args(seed, orbits, site_latitude_deg)
-    spec = navigation if navigation is not None else NavigationErrorSpec()
+    _check_args(seed, orbits, site_latitude_deg, sites, site_spacing_deg)
+    n_sites = int(sites)
+    if navigation is None:
+        spec = NavigationErrorSpec() if n_sites == 1 else MULTI_SITE_NAVIGATION
+    else:
+        spec = navigation
     if not isinstance(spec, NavigationErrorSpec):
         raise InvalidInputError(f"navigation must be a NavigationErrorSpec, got {type(spec).__name__}")
     orbits, lat0 = int(orbits), float(site_latitude_deg)
+    spacing = float(site_spacing_deg) if n_sites > 1 else 0.0
+    lats = [lat0 + k * spacing for k in range(n_sites)]
     rng = np.random.default_rng(int(seed))
     ecc = float(rng.uniform(0.001, 0.002))
     periapsis = float(rng.uniform(0.0, 2.0 * np.pi))
@@ -436,35 +565,55 @@ def build_block_model(seed: int = 0, *, orbits: int = BLOCK_ORBITS, site_latitud
     never = start - 1.0  # an empty yaw-flip interval
     nadir = NadirAttitude(orbit, wobble_amp, wobble_period, wobble_phase, never, never)
 
-    # the site: between the tracks (or beside the middle one) at the site latitude
-    crossings = [_latitude_crossing(orbit, lat0, k + 1, start_u) for k in range(orbits)]
-    lons = []
-    for t in crossings:
-        p = j2000_to_iau_moon(t) @ orbit.state(np.asarray(t))[:3]
-        lons.append(float(np.degrees(np.arctan2(p[1], p[0]))))
-    lons_u = np.degrees(np.unwrap(np.radians(lons)))
-    offset = SITE_TRACK_OFFSET_M if orbits % 2 else 0.0
-    lon0 = float(np.mean(lons_u) + np.degrees(offset / (MOON_RADIUS_KM * 1000.0 * np.cos(np.radians(lat0)))))
-    lon0 = float(np.mod(lon0 + 180.0, 360.0) - 180.0)
+    # each site: between the tracks (or beside the middle one) at its latitude
+    crossings: list[list[float]] = []  # [site][orbit]
+    site_list = []
+    for s, lat in enumerate(lats):
+        crossings.append([_latitude_crossing(orbit, lat, k + 1, start_u) for k in range(orbits)])
+        lons = []
+        for t in crossings[s]:
+            p = j2000_to_iau_moon(t) @ orbit.state(np.asarray(t))[:3]
+            lons.append(float(np.degrees(np.arctan2(p[1], p[0]))))
+        lons_u = np.degrees(np.unwrap(np.radians(lons)))
+        offset = SITE_TRACK_OFFSET_M if orbits % 2 else 0.0
+        lon = float(np.mean(lons_u) + np.degrees(offset / (MOON_RADIUS_KM * 1000.0 * np.cos(np.radians(lat)))))
+        site_list.append(BlockSite(s + 1, lat, float(np.mod(lon + 180.0, 360.0) - 180.0)))
+    lon0 = site_list[0].longitude_deg
 
-    # rolls and reference epochs: the NAC boresight meets the site
+    # rolls and reference epochs: the NAC boresight meets each site
     stub = BlockModel(seed=int(seed), orbits=orbits, site_latitude_deg=lat0, site_longitude_deg=lon0,
                       site_extent_m=0.0, start_et=start, end_et=start,
                       sclk_zero_et=tdb_to_et(textkernels.SCLK_ZERO_TDB),
                       orbit=orbit, nadir=nadir, passes=(), mounting_angles_deg=mounting, images=(),
-                      navigation=None, navigation_spec=spec)  # type: ignore[arg-type]
-    site = stub.site_xyz()
-    east, north = _east_north(lon0, lat0)
+                      navigation=None, navigation_spec=spec,  # type: ignore[arg-type]
+                      sites=tuple(site_list), site_spacing_deg=spacing)
+    half = PASS_HALF_WIDTH if n_sites == 1 else MULTI_SITE_HALF_WIDTH
     passes = []
-    for k, t_cross in enumerate(crossings):
-        t_o, roll = _point_at_site(stub, t_cross, site, east, north)
-        passes.append(BlockPass(k + 1, t_o, float(np.degrees(roll)), t_o - PASS_HALF_WIDTH, t_o + PASS_HALF_WIDTH))
+    for k in range(orbits):
+        for site in site_list:
+            east, north = _east_north(site.longitude_deg, site.latitude_deg)
+            t_o, roll = _point_at_site(stub, crossings[site.site - 1][k], stub.site_xyz(site=site.site), east, north)
+            passes.append(BlockPass(k + 1, t_o, float(np.degrees(roll)), t_o - half, t_o + half, site.site))
+    passes.sort(key=lambda p: p.epoch)
+    gaps = [(b.start_et - a.end_et, a, b) for a, b in zip(passes, passes[1:])]
+    short = [(g, a, b) for g, a, b in gaps if g < MIN_SLEW_S]
+    if short:
+        g, a, b = short[0]
+        raise InvalidInputError(f"sites {a.site} and {b.site} are {b.epoch - a.epoch:.1f} s apart on orbit {a.orbit}: "
+                                f"their pass windows (+-{half:g} s) leave {g:.1f} s (< {MIN_SLEW_S:g} s) to slew; "
+                                f"space the sites further apart")
+    # navigation: one reference epoch per orbit, midway between its first and last site (the site, with one)
+    epochs = []
+    for k in range(orbits):
+        ts = [p.epoch for p in passes if p.orbit == k + 1]
+        epochs.append(0.5 * (min(ts) + max(ts)))
     windows = [[p.start_et, p.end_et] for p in passes]
-    nav = draw_navigation_errors(rng, [p.epoch for p in passes], windows, spec)
+    nav = draw_navigation_errors(rng, epochs, windows, spec, [p.orbit - 1 for p in passes])
     model = _replace(stub, passes=tuple(passes), navigation=nav,
                      start_et=passes[0].start_et - SPK_MARGIN, end_et=passes[-1].end_et + SPK_MARGIN)
-    model = _replace(model, images=tuple(_plan_images(model, site)))
-    return _replace(model, site_extent_m=_site_extent(model, east, north))
+    model = _replace(model, images=tuple(_plan_images(model)))
+    sized = tuple(dataclasses.replace(s, extent_m=_site_extent(model, s.site)) for s in site_list)
+    return _replace(model, sites=sized, site_extent_m=sized[0].extent_m)
 
 
 def _replace(model: BlockModel, **changes: Any) -> BlockModel:
@@ -518,57 +667,73 @@ def _pushbroom_line_time(model: BlockModel, cam: BlockCameraSpec, t: float) -> f
     return round(float(np.linalg.norm(g2 - g1) / np.linalg.norm(v)), 9)
 
 
-def _plan_images(model: BlockModel, site: Array) -> list[BlockImagePlan]:
+def _plan_images(model: BlockModel) -> list[BlockImagePlan]:
+    """The four images of every pass: site by site, orbit by orbit."""
     out = []
-    for p in model.passes:
-        along = model.orbit_frame(p.epoch)[0]
-        lt = _pushbroom_line_time(model, BLOCK_NAC, p.epoch)
-        out.append(BlockImagePlan(f"orbit{p.orbit}_nac", BLOCK_NAC, p.orbit, "nac", PUSHBROOM_LINES, p.epoch, lt, None))
-        t_tc = _closest_time(model, BLOCK_TC.naif_id, p.epoch, site, along)
-        lt = _pushbroom_line_time(model, BLOCK_TC, t_tc)
-        out.append(BlockImagePlan(f"orbit{p.orbit}_tc", BLOCK_TC, p.orbit, "tc", PUSHBROOM_LINES, t_tc, lt, None))
-        t_fr = _closest_time(model, BLOCK_FRAME.naif_id, p.epoch, site, along)
-        h = 0.05
-        speed = np.linalg.norm(model.boresight_ground(BLOCK_FRAME.naif_id, t_fr + h)
-                               - model.boresight_ground(BLOCK_FRAME.naif_id, t_fr - h)) / (2 * h)
-        # along-track footprint: the frame's samples run along track
-        c = BLOCK_FRAME
-        a = model.boresight_ground(c.naif_id, t_fr, (-0.5 * c.samples * c.pixel_pitch_mm, 0.0, c.focal_length_mm))
-        b = model.boresight_ground(c.naif_id, t_fr, (0.5 * c.samples * c.pixel_pitch_mm, 0.0, c.focal_length_mm))
-        step = round(FRAME_ADVANCE * float(np.linalg.norm(b - a)) / float(speed), 3)
-        for kind, t in (("frame_a", t_fr - step / 2), ("frame_b", t_fr + step / 2)):
-            out.append(BlockImagePlan(f"orbit{p.orbit}_{kind}", BLOCK_FRAME, p.orbit, kind, BLOCK_FRAME.lines, t,
-                                      None, FRAME_EXPOSURE_MS / 1000.0))
+    n = model.n_sites
+    for s in model.sites:
+        site = model.site_xyz(site=s.site)
+        for k in range(1, model.orbits + 1):
+            p = model.pass_of(k, s.site)
+            along = model.orbit_frame(p.epoch)[0]
+            lt = _pushbroom_line_time(model, BLOCK_NAC, p.epoch)
+            out.append(BlockImagePlan(image_name(s.site, k, "nac", n), BLOCK_NAC, k, "nac", PUSHBROOM_LINES,
+                                      p.epoch, lt, None, s.site))
+            t_tc = _closest_time(model, BLOCK_TC.naif_id, p.epoch, site, along)
+            lt = _pushbroom_line_time(model, BLOCK_TC, t_tc)
+            out.append(BlockImagePlan(image_name(s.site, k, "tc", n), BLOCK_TC, k, "tc", PUSHBROOM_LINES, t_tc,
+                                      lt, None, s.site))
+            t_fr = _closest_time(model, BLOCK_FRAME.naif_id, p.epoch, site, along)
+            h = 0.05
+            speed = np.linalg.norm(model.boresight_ground(BLOCK_FRAME.naif_id, t_fr + h)
+                                   - model.boresight_ground(BLOCK_FRAME.naif_id, t_fr - h)) / (2 * h)
+            # along-track footprint: the frame's samples run along track
+            c = BLOCK_FRAME
+            a = model.boresight_ground(c.naif_id, t_fr, (-0.5 * c.samples * c.pixel_pitch_mm, 0.0, c.focal_length_mm))
+            b = model.boresight_ground(c.naif_id, t_fr, (0.5 * c.samples * c.pixel_pitch_mm, 0.0, c.focal_length_mm))
+            step = round(FRAME_ADVANCE * float(np.linalg.norm(b - a)) / float(speed), 3)
+            for kind, t in (("frame_a", t_fr - step / 2), ("frame_b", t_fr + step / 2)):
+                out.append(BlockImagePlan(image_name(s.site, k, kind, n), BLOCK_FRAME, k, kind, BLOCK_FRAME.lines,
+                                          t, None, FRAME_EXPOSURE_MS / 1000.0, s.site))
     return out
 
 
-def _site_extent(model: BlockModel, east: Array, north: Array) -> float:
-    """Side (m, rounded up to 100 m) of a square about the site holding every image footprint plus 300 m."""
-    site = model.site_xyz()
+def image_footprint(model: BlockModel, im: BlockImagePlan) -> Array:
+    """The four corners of an image's footprint on the reference sphere (truth, no distortion), body-fixed m."""
+    corners = im.camera.fov_corners() * im.camera.focal_length_mm
+    if im.line_time is not None:
+        times = np.array([im.planned_start_et, im.planned_start_et, im.planned_start_et + im.duration,
+                          im.planned_start_et + im.duration])
+    else:
+        times = np.full(4, im.center_et)
+    return np.array([model.boresight_ground(im.camera.naif_id, t, look) for t, look in zip(times, corners)])
+
+
+def _site_extent(model: BlockModel, site: int) -> float:
+    """Side (m, rounded up to 100 m) of a square about a site holding its images' footprints plus 300 m."""
+    s = model.site(site)
+    centre = model.site_xyz(site=site)
+    east, north = _east_north(s.longitude_deg, s.latitude_deg)
     reach = 0.0
     for im in model.images:
-        corners = im.camera.fov_corners() * im.camera.focal_length_mm
-        if im.line_time is not None:
-            times = np.array([im.planned_start_et, im.planned_start_et, im.planned_start_et + im.duration,
-                              im.planned_start_et + im.duration])
-        else:
-            times = np.full(4, im.center_et)
-        for t, look in zip(times, corners):
-            d = model.boresight_ground(im.camera.naif_id, t, look) - site
+        if im.site != site:
+            continue
+        for g in image_footprint(model, im):
+            d = g - centre
             reach = max(reach, abs(float(d @ east)), abs(float(d @ north)))
     # 300 m: terrain relief moves footprints (tens of metres) and the DTM needs a border
     return float(100.0 * np.ceil((2.0 * reach + 600.0) / 100.0))
 
 
 def block_geometry(model: BlockModel) -> dict[str, Any]:
-    """Per-image viewing geometry at the site and the convergence angle of every image pair (degrees)."""
-    site = model.site_xyz()
-    up = _unit(site)
+    """Per-image viewing geometry at its site and the convergence angle of every pair of images of one site (deg)."""
     views, out = {}, {}
     for im in model.images:
+        site = model.site_xyz(site=im.site)
+        up = _unit(site)
         pos = model.position_body_fixed(im.center_et)
         view = _unit(pos - site)
-        views[im.name] = view
+        views[im.name] = (im.site, view)
         sun = model.sun_direction_body_fixed(im.center_et)
         cam = im.camera
         slant = float(np.linalg.norm(pos - site))
@@ -577,9 +742,9 @@ def block_geometry(model: BlockModel) -> dict[str, Any]:
             "incidence_deg": float(np.degrees(np.arccos(sun @ up))),
             "slant_range_m": slant,
             "gsd_m": slant * cam.ifov,  # nominal: slant range times IFOV
-            "roll_deg": model.passes[im.orbit - 1].roll_deg,
+            "roll_deg": model.pass_of(im.orbit, im.site).roll_deg,
         }
     names = list(views)
-    conv = {f"{a}|{b}": float(np.degrees(np.arccos(np.clip(views[a] @ views[b], -1.0, 1.0))))
-            for i, a in enumerate(names) for b in names[i + 1:]}
+    conv = {f"{a}|{b}": float(np.degrees(np.arccos(np.clip(views[a][1] @ views[b][1], -1.0, 1.0))))
+            for i, a in enumerate(names) for b in names[i + 1:] if views[a][0] == views[b][0]}
     return {"images": out, "convergence_deg": conv}

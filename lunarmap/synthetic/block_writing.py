@@ -10,6 +10,7 @@ Folder layout written by :func:`write_block_mission`::
     block_navigation.bsp  block_navigation.bc              the same with the navigation errors (passes)
     truth.tm  navigation.tm                                meta-kernels (shared kernels + one pair)
     orbit<k>_<kind>.lbl                                    ISIS-like labels, shared by both kernel sets
+                                                           (s<site>_orbit<k>_<kind>.lbl with several sites)
     block_mission.json                                     manifest (see :func:`write_block_mission`)
 
 Everything is written into a hidden staging folder inside the destination
@@ -36,8 +37,8 @@ from ..spice import KernelSet, kernels
 from ..spice import queries as q
 from ..spice.writer import Append, CkSegment, SpkSegment, Value, write_ck, write_spk, write_text_kernel
 from . import ids, textkernels
-from .block import (NAV_CK_STEP, NAV_SPK_STEP, TRUTH_CK_STEP, TRUTH_SPK_STEP, BlockModel, BlockPass,
-                    block_geometry, build_block_model)
+from .block import (MULTI_SITE_NAVIGATION, NAV_CK_STEP, NAV_SPK_STEP, SITE_SPACING_DEG, TRUTH_CK_STEP,
+                    TRUTH_SPK_STEP, BlockModel, BlockPass, block_geometry, build_block_model)
 from .block_cameras import BLOCK_CAMERAS, BlockCameraSpec
 from .bodies import MOON_RADIUS_KM, moon_state_ssb, sun_state_ssb
 from .labels import isis_label
@@ -78,9 +79,10 @@ def block_fk(model: BlockModel) -> tuple[str, list[tuple[str, Mapping[str, Value
     for c in BLOCK_CAMERAS:
         sections.append((f"{c.name}: {c.description}",
                          textkernels._tk(c.naif_id, c.frame_name, ids.BUS_FRAME, model.mounting_angles_deg[c.naif_id])))
+    over = "the site" if model.n_sites == 1 else "a site"
     comments = ("Frames of the LUNARMAP-SIM imaging block (lunarmap.synthetic.write_block_mission).\n"
                 f"  {ids.BUS_FRAME} ({b}): spacecraft bus, CK frame relative to J2000; +z nadir, +x roughly\n"
-                "      along the ground-track velocity; rolled about +x during each pass over the site.\n"
+                f"      along the ground-track velocity; rolled about +x during each pass over {over}.\n"
                 "  Cameras (TK frames relative to the bus, boresight +z): SIM_BLK_NAC looks along the bus +z,\n"
                 "  SIM_BLK_TC is pitched forward and SIM_BLK_FRAME aft by 6 degrees about the bus +y, each\n"
                 "  with a random misalignment of a few hundredths of a degree.")
@@ -135,6 +137,11 @@ def _grid(p: BlockPass, step: float) -> np.ndarray:
     return p.start_et + step * np.arange(n + 1)
 
 
+def _pass_name(p: BlockPass, sites: int) -> str:
+    """``ORBIT <o>`` (``ORBIT <o> SITE <s>`` with several sites), for segment ids (at most 40 characters)."""
+    return f"ORBIT {p.orbit}" if sites == 1 else f"ORBIT {p.orbit} SITE {p.site}"
+
+
 def _comments(model: BlockModel, what: str) -> list[str]:
     return [f"{what} of the LUNARMAP-SIM imaging block (fictional; not real data).",
             f"Written by lunarmap.synthetic.write_block_mission, seed {model.seed}."]
@@ -164,11 +171,13 @@ def _write_kernels(model: BlockModel, d: Path) -> None:
                                                 "LUNARMAP-SIM BLOCK TRUTH", SPK_DEGREE)],
               internal_name="LUNARMAP-SIM BLOCK TRUTH", comments=_comments(model, "True trajectory SPK"))
     nav_spk = []
+    n = model.n_sites
+    nav_label = "LUNARMAP-SIM BLOCK NAVIGATION" if n == 1 else "LUNARMAP-SIM BLOCK NAV"
     for p in model.passes:
         t = _grid(p, NAV_SPK_STEP)
         st = model.navigation_state(t)
         nav_spk.append(SpkSegment(ids.SPACECRAFT_ID, ids.MOON_ID, "J2000", t, st[:, :3], st[:, 3:],
-                                  f"LUNARMAP-SIM BLOCK NAVIGATION ORBIT {p.orbit}", SPK_DEGREE))
+                                  f"{nav_label} {_pass_name(p, n)}", SPK_DEGREE))
     write_spk(d / NAVIGATION_KERNELS[0], nav_spk, internal_name="LUNARMAP-SIM BLOCK NAVIGATION",
               comments=_comments(model, "Navigation trajectory SPK (truth + per-orbit errors)"))
 
@@ -177,11 +186,11 @@ def _write_kernels(model: BlockModel, d: Path) -> None:
         t = _grid(p, TRUTH_CK_STEP)
         q_true = align_quaternion_signs(matrix_to_quat(model.bus_matrix(t)))
         truth_ck.append(CkSegment(ids.BUS_FRAME_ID, "J2000", t, q_true, model.bus_angular_velocity(t),
-                                  f"SIM BLOCK BUS TRUTH ORBIT {p.orbit}"))
+                                  f"SIM BLOCK BUS TRUTH {_pass_name(p, n)}"))
         t = _grid(p, NAV_CK_STEP)
         q_nav = align_quaternion_signs(matrix_to_quat(model.navigation_bus_matrix(t)))
         nav_ck.append(CkSegment(ids.BUS_FRAME_ID, "J2000", t, q_nav, model.navigation_bus_angular_velocity(t),
-                                f"SIM BLOCK BUS NAVIGATION ORBIT {p.orbit}"))
+                                f"SIM BLOCK BUS NAVIGATION {_pass_name(p, n)}"))
     for name, segs, what in ((TRUTH_KERNELS[1], truth_ck, "True bus attitude CK"),
                              (NAVIGATION_KERNELS[1], nav_ck, "Navigation bus attitude CK (truth + errors)")):
         write_ck(d / name, segs, time_kernels=[lsk, sclk], sclk_id=ids.SCLK_ID,
@@ -227,11 +236,13 @@ def _image_records(model: BlockModel, d: Path) -> dict[str, Any]:
             center = start + 0.5 * im.duration
             rec: dict[str, Any] = {
                 "label": f"{im.name}.lbl", "camera": im.camera.name, "kind": im.kind, "orbit": im.orbit,
+                **({} if model.n_sites == 1 else {"site": im.site}),
                 "instrument_id": im.camera.naif_id, "frame": im.camera.frame_name,
                 "camera_type": im.camera.camera_type, "samples": im.samples, "lines": im.lines,
                 "start_time_utc": q.et2utc(start, "ISOC", 6), "stop_time_utc": q.et2utc(stop, "ISOC", 6),
                 "sclk_start": sclk, "start_et": start, "center_et": center, "stop_et": stop,
-                "seconds_from_orbit_reference": center - model.passes[im.orbit - 1].epoch,
+                # the pass's reference: the NAC's view of the image's site on this orbit
+                "seconds_from_orbit_reference": center - model.pass_of(im.orbit, im.site).epoch,
                 "geometry": geometry[im.name],
                 "navigation_error": _navigation_error(model, center),
             }
@@ -261,6 +272,21 @@ def _manifest(model: BlockModel, images: dict[str, Any], params: dict[str, Any])
                         "ifov_rad": c.ifov, "mounting_angles_deg": list(model.mounting_angles_deg[c.naif_id]),
                         "ik": SHARED_KERNELS[4 + BLOCK_CAMERAS.index(c)]}
     nav = model.navigation.to_dict()
+    several = model.n_sites > 1
+    if several:
+        site = {"sites": [{"site": s.site, "latitude_deg": s.latitude_deg, "longitude_deg": s.longitude_deg,
+                           "extent_m": s.extent_m, "images": list(model.site_image_names(s.site))}
+                          for s in model.sites],
+                "site_note": ("site k lies (k - 1) * site_spacing_deg degrees of latitude from site 1; on every "
+                              "orbit the bus points the NAC at each site in turn (one pass window per site, "
+                              "constant roll) and slews between them outside the windows")}
+        orbits = {"orbits": [{"orbit": o["orbit"], "reference_et": o["reference_et"], "window_et": o["window_et"]}
+                             for o in nav["orbits"]],
+                  "passes": [{"orbit": p.orbit, "site": p.site, "reference_et": p.epoch, "roll_deg": p.roll_deg,
+                              "window_et": [p.start_et, p.end_et]} for p in model.passes]}
+    else:
+        site, orbits = {}, {"orbits": [{"orbit": p.orbit, "reference_et": p.epoch, "roll_deg": p.roll_deg,
+                                        "window_et": [p.start_et, p.end_et]} for p in model.passes]}
     return {
         "mission": ids.SPACECRAFT_NAME,
         "scenario": "block",
@@ -273,15 +299,17 @@ def _manifest(model: BlockModel, images: dict[str, Any], params: dict[str, Any])
         "target": {"name": "MOON", "id": ids.MOON_ID, "frame": ids.MOON_FRAME, "radius_km": MOON_RADIUS_KM},
         "site": {"latitude_deg": model.site_latitude_deg, "longitude_deg": model.site_longitude_deg,
                  "extent_m": model.site_extent_m,
-                 "note": "every image footprint fits in the square of side extent_m centred on the site"},
+                 "note": "every image footprint fits in the square of side extent_m centred on the site"
+                 + (" (site 1 and its images; every site: sites)" if several else "")},
+        **site,
         "instruments": cams,
-        "orbits": [{"orbit": p.orbit, "reference_et": p.epoch, "roll_deg": p.roll_deg,
-                    "window_et": [p.start_et, p.end_et]} for p in model.passes],
+        **orbits,
         "orbit": {"epoch_et": o.epoch, "semi_major_axis_km": o.semi_major_axis, "eccentricity": o.eccentricity,
                   "inclination_deg": float(np.degrees(o.inclination)), "node_deg": float(np.degrees(o.node)),
                   "period_s": o.period},
         "coverage": {"truth_spk_et": [model.start_et, model.end_et],
-                     "attitude_and_navigation": "the orbits' window_et only"},
+                     "attitude_and_navigation": "the passes' window_et only" if several
+                     else "the orbits' window_et only"},
         "sampling": {"truth_spk_step_s": TRUTH_SPK_STEP, "truth_ck_step_s": TRUTH_CK_STEP,
                      "navigation_spk_step_s": NAV_SPK_STEP, "navigation_ck_step_s": NAV_CK_STEP,
                      "spk_degree": SPK_DEGREE},
@@ -293,7 +321,10 @@ def _manifest(model: BlockModel, images: dict[str, Any], params: dict[str, Any])
                            "Rv(v) = exp([v]x)); for every camera the sensor-to-body rotation becomes "
                            "R_nav = Rv(w) R_true with w = B C_true^T th (attitude_body_fixed_rad). n_p, n_a: "
                            "smooth random parts (sums of sinusoids, listed below). Per image, navigation_error "
-                           "gives these errors at the image centre time."),
+                           "gives these errors at the image centre time."
+                           + (" With several sites, t_o is the orbit's reference_et (midway between its first "
+                              "and last site) and the errors are defined in its pass_windows_et." if several
+                              else "")),
             "magnitudes": model.navigation_spec.to_dict(),
             **nav,
         },
@@ -344,6 +375,15 @@ class BlockMission:
     def image_names(self) -> tuple[str, ...]:
         return self.model.image_names
 
+    @property
+    def n_sites(self) -> int:
+        """Number of sites."""
+        return self.model.n_sites
+
+    def site_image_names(self, site: int) -> tuple[str, ...]:
+        """The images of one site (1-based)."""
+        return self.model.site_image_names(site)
+
     def label(self, name: str) -> Path:
         """The label file of an image."""
         self.model.image(name)
@@ -355,13 +395,17 @@ class BlockMission:
         return self.manifest["images"][name]["navigation_error"]
 
 
-def _params(orbits: int, site_latitude_deg: float, spec: NavigationErrorSpec) -> dict[str, Any]:
-    return {"orbits": int(orbits), "site_latitude_deg": float(site_latitude_deg), "navigation": spec.to_dict()}
+def _params(orbits: int, site_latitude_deg: float, spec: NavigationErrorSpec, sites: int = 1,
+            site_spacing_deg: float = SITE_SPACING_DEG) -> dict[str, Any]:
+    out = {"orbits": int(orbits), "site_latitude_deg": float(site_latitude_deg), "navigation": spec.to_dict()}
+    if sites > 1:  # a one-site manifest stays as it was before sites existed
+        out.update({"sites": int(sites), "site_spacing_deg": float(site_spacing_deg)})
+    return out
 
 
-def _spec(navigation: NavigationErrorSpec | Mapping[str, Any] | None) -> NavigationErrorSpec:
+def _spec(navigation: NavigationErrorSpec | Mapping[str, Any] | None, sites: Any = 1) -> NavigationErrorSpec:
     if navigation is None:
-        return NavigationErrorSpec()
+        return MULTI_SITE_NAVIGATION if isinstance(sites, (int, np.integer)) and sites > 1 else NavigationErrorSpec()
     if isinstance(navigation, NavigationErrorSpec):
         return navigation
     if isinstance(navigation, Mapping):
@@ -374,7 +418,8 @@ def _spec(navigation: NavigationErrorSpec | Mapping[str, Any] | None) -> Navigat
 
 def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits: int = 3,
                         site_latitude_deg: float = 57.0,
-                        navigation: NavigationErrorSpec | Mapping[str, Any] | None = None) -> BlockMission:
+                        navigation: NavigationErrorSpec | Mapping[str, Any] | None = None, sites: int = 1,
+                        site_spacing_deg: float = SITE_SPACING_DEG) -> BlockMission:
     """Write the imaging block: kernels (TRUTH and NAVIGATION sets), labels and manifest.
 
     Parameters
@@ -388,11 +433,22 @@ def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits
         Consecutive orbits over the site (2 to 4; 3: convergence angles of
         about 20 and 40 degrees between the orbits).
     site_latitude_deg : float
-        Site latitude, degrees.
+        Site latitude (site 1), degrees.
     navigation : NavigationErrorSpec or mapping, optional
         Magnitudes of the navigation errors (defaults: per-orbit position
         offsets of 20-50 m, attitude offsets of 20-50 urad; see
-        :class:`~lunarmap.synthetic.nav_errors.NavigationErrorSpec`).
+        :class:`~lunarmap.synthetic.nav_errors.NavigationErrorSpec`; with
+        several sites :data:`~lunarmap.synthetic.block.MULTI_SITE_NAVIGATION`,
+        whose drifts are ten times smaller).
+    sites : int
+        Sites along the ground track (1 to 8), each seen on every orbit by
+        the same four images: ``4 * orbits * sites`` images, named
+        ``s<site>_orbit<k>_<kind>`` when ``sites > 1`` (``orbit<k>_<kind>``
+        with one site, whose files are exactly those written before sites
+        existed).
+    site_spacing_deg : float
+        Latitude of site ``k + 1`` minus that of site ``k``, degrees (default
+        -8: southward, about 150 s of flight apart; ``6 <= |spacing| <= 20``).
 
     Returns
     -------
@@ -405,8 +461,9 @@ def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits
     BlockMissionError
         ``folder`` exists and is not a folder.
     """
-    spec = _spec(navigation)
-    model = build_block_model(seed, orbits=orbits, site_latitude_deg=site_latitude_deg, navigation=spec)
+    spec = _spec(navigation, sites)
+    model = build_block_model(seed, orbits=orbits, site_latitude_deg=site_latitude_deg, navigation=spec, sites=sites,
+                              site_spacing_deg=site_spacing_deg)
     dest = Path(folder).expanduser()
     if dest.exists() and not dest.is_dir():
         raise BlockMissionError(f"cannot write the block mission into {dest}: it exists and is not a folder")
@@ -416,7 +473,8 @@ def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits
     try:
         _write_kernels(model, staging)
         images = _image_records(model, staging)
-        manifest = _manifest(model, images, _params(orbits, site_latitude_deg, spec))
+        manifest = _manifest(model, images, _params(orbits, site_latitude_deg, spec, model.n_sites,
+                                                    site_spacing_deg))
         atomic_write(staging / BLOCK_MANIFEST_NAME, lambda tmp: tmp.write_text(
             json.dumps(manifest, indent=1) + "\n", encoding="ascii"))
         (staging / TRUTH_METAKERNEL).write_text(_metakernel_text("truth"), encoding="ascii")
@@ -458,11 +516,12 @@ def open_block_mission(folder: str | os.PathLike[str] | BlockMission) -> BlockMi
             raise KeyError("scenario")
         model = build_block_model(int(man["seed"]), orbits=int(p["orbits"]),
                                   site_latitude_deg=float(p["site_latitude_deg"]),
-                                  navigation=_spec(p["navigation"]))
+                                  navigation=_spec(p["navigation"]), sites=int(p.get("sites", 1)),
+                                  site_spacing_deg=float(p.get("site_spacing_deg", SITE_SPACING_DEG)))
     except (ValueError, KeyError, TypeError) as exc:
         raise BlockMissionError(f"{path} is not a valid block-mission manifest ({exc!r})") from None
     # the kernels were written from this model: a different lunarmap version must not reinterpret them
-    epochs = [o.get("reference_et") for o in man.get("orbits", [])]
+    epochs = [o.get("reference_et") for o in man.get("passes", man.get("orbits", []))]
     if sorted(model.image_names) != sorted(man["images"]) or len(epochs) != len(model.passes) or any(
             abs(float(e) - p.epoch) > 1e-6 for e, p in zip(epochs, model.passes)) \
             or abs(man["site"]["longitude_deg"] - model.site_longitude_deg) > 1e-9:

@@ -26,6 +26,11 @@ axis, sums of three sinusoids with periods in ``noise_periods_s`` and random
 phases whose amplitudes make their RMS ``position_noise_m`` /
 ``attitude_noise_rad``: smooth over seconds, so images of one orbit (a few
 seconds apart) do not share exactly the same error.
+
+An orbit may hold several pass windows (a block of several sites: one window
+per site, the spacecraft slewing between them outside the kernels'
+coverage); the orbit's offset and drift then hold over all of its windows,
+about the orbit's single reference epoch ``t_o``.
 """
 
 from __future__ import annotations
@@ -158,9 +163,9 @@ class NavigationErrors:
     Parameters
     ----------
     epochs : ndarray (n_orbits,)
-        Reference epochs ``t_o`` of the passes, ET.
-    windows : ndarray (n_orbits, 2)
-        ET intervals of the passes (the kernels' coverage around each ``t_o``).
+        Reference epochs ``t_o`` of the orbits, ET.
+    windows : ndarray (n_windows, 2)
+        ET intervals of the passes (the kernels' coverage), one or more per orbit.
     position_offset : ndarray (n_orbits, 3)
         ``c_o``, body-fixed, m.
     position_drift : ndarray (n_orbits, 3)
@@ -171,6 +176,8 @@ class NavigationErrors:
         ``b_o``, bus axes, rad/s.
     position_noise, attitude_noise : SmoothNoise
         ``n_p`` (m, body-fixed) and ``n_a`` (rad, bus axes).
+    window_orbit : ndarray of int (n_windows,), optional
+        0-based orbit of each window (default: window ``k`` is orbit ``k``).
     """
 
     epochs: Array
@@ -181,16 +188,25 @@ class NavigationErrors:
     attitude_drift: Array
     position_noise: SmoothNoise
     attitude_noise: SmoothNoise
+    window_orbit: NDArray[np.intp] | None = None
+
+    def __post_init__(self) -> None:
+        n_win = self.windows.shape[0]
+        wo = np.arange(n_win) if self.window_orbit is None else np.asarray(self.window_orbit, dtype=np.intp)
+        if wo.shape != (n_win,) or (n_win and (wo.min() < 0 or wo.max() >= self.epochs.size)):
+            raise InvalidInputError(f"window_orbit must give an orbit in [0, {self.epochs.size}) for each of the "
+                                    f"{n_win} windows, got {wo.tolist()}")
+        object.__setattr__(self, "window_orbit", wo)
 
     def orbit_index(self, et: ArrayLike) -> NDArray[np.intp]:
-        """0-based pass index of each epoch; raises outside every pass window (widened by 1 s for derivatives)."""
+        """0-based orbit of each epoch; raises outside every pass window (widened by 1 s for derivatives)."""
         et = np.asarray(et, dtype=float)
         inside = (et[..., None] >= self.windows[:, 0] - _EDGE) & (et[..., None] <= self.windows[:, 1] + _EDGE)
         if not np.all(inside.any(axis=-1)):
             bad = et[~inside.any(axis=-1)]
             raise InvalidInputError(f"ET {bad.ravel()[:3]} is outside every orbit pass of the block "
                                     f"({self.windows.tolist()})")
-        return np.argmax(inside, axis=-1)
+        return self.window_orbit[np.argmax(inside, axis=-1)]  # type: ignore[index]
 
     def _linear(self, et: ArrayLike, offset: Array, drift: Array) -> Array:
         et = np.asarray(et, dtype=float)
@@ -213,15 +229,23 @@ class NavigationErrors:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready per-orbit values (the random parts' sinusoids included)."""
         out: dict[str, Any] = {"orbits": []}
+        several = np.bincount(self.window_orbit, minlength=self.epochs.size).max() > 1  # type: ignore[arg-type]
         for k in range(self.epochs.size):
-            out["orbits"].append({
+            win = self.windows[self.window_orbit == k]
+            rec: dict[str, Any] = {
                 "orbit": k + 1, "reference_et": float(self.epochs[k]),
-                "window_et": [float(v) for v in self.windows[k]],
+                # one window: that window; several (one per site): from the first one's start to the last one's end
+                "window_et": [float(win[:, 0].min()), float(win[:, 1].max())],
+            }
+            if several:
+                rec["pass_windows_et"] = [[float(a), float(b)] for a, b in win]
+            rec.update({
                 "position_offset_m": self.position_offset[k].tolist(),
                 "position_drift_m_per_s": self.position_drift[k].tolist(),
                 "attitude_offset_rad": self.attitude_offset[k].tolist(),
                 "attitude_drift_rad_per_s": self.attitude_drift[k].tolist(),
             })
+            out["orbits"].append(rec)
         for name, noise in (("position_noise", self.position_noise), ("attitude_noise", self.attitude_noise)):
             out[name] = {"amplitude": noise.amplitude.tolist(), "period_s": noise.period.tolist(),
                          "phase_rad": noise.phase.tolist(), "epoch_et": noise.epoch}
@@ -236,16 +260,22 @@ def _random_vectors(rng: np.random.Generator, n: int, magnitude: tuple[float, fl
 
 
 def draw_navigation_errors(rng: np.random.Generator, epochs: ArrayLike, windows: ArrayLike,
-                           spec: NavigationErrorSpec) -> NavigationErrors:
-    """Draw the navigation errors of the passes from ``rng`` (the draw order is fixed, so seeds are stable)."""
+                           spec: NavigationErrorSpec, window_orbit: ArrayLike | None = None) -> NavigationErrors:
+    """Draw the navigation errors of the orbits from ``rng`` (the draw order is fixed, so seeds are stable).
+
+    ``epochs``: one reference epoch per orbit; ``windows``: the pass windows, ``window_orbit`` the
+    0-based orbit of each (default: one window per orbit, in order). The draws depend only on the
+    number of orbits, so adding windows to an orbit does not change its errors.
+    """
     epochs = np.asarray(epochs, dtype=float)
     n = epochs.size
     return NavigationErrors(
-        epochs=epochs, windows=np.asarray(windows, dtype=float).reshape(n, 2),
+        epochs=epochs, windows=np.asarray(windows, dtype=float).reshape(-1, 2),
         position_offset=_random_vectors(rng, n, spec.position_offset_m),
         position_drift=_random_vectors(rng, n, spec.position_drift_m_per_s),
         attitude_offset=_random_vectors(rng, n, spec.attitude_offset_rad),
         attitude_drift=_random_vectors(rng, n, spec.attitude_drift_rad_per_s),
         position_noise=SmoothNoise.draw(rng, spec.position_noise_m, spec.noise_periods_s, float(epochs[0])),
         attitude_noise=SmoothNoise.draw(rng, spec.attitude_noise_rad, spec.noise_periods_s, float(epochs[0])),
+        window_orbit=None if window_orbit is None else np.asarray(window_orbit, dtype=np.intp),
     )
