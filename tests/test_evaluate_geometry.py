@@ -21,7 +21,7 @@ import spiceypy
 from lunarmap.camera.factory import camera_from_isd
 from lunarmap.camera.geodesy import xyz_to_lonlat_height
 from lunarmap.errors import EvaluationInputError, GeometryError, NoOverlapError
-from lunarmap.evaluate import footprint, image_geometry, overlap, pair_geometry, shadow_tip_distance, view_geometry
+from lunarmap.evaluate import candidate_pairs, footprint, image_geometry, overlap, pair_geometry, shadow_tip_distance, view_geometry
 from lunarmap.orientation.drivers import image_support
 from lunarmap.simulate import look_angle_for_emission, pointed_camera, stereo_pair
 from lunarmap.simulate.orbits import GM_MOON, NAC_LINE_TIME
@@ -242,6 +242,38 @@ def test_overlap_of_shifted_frames_equals_grid_count():
     assert ov.area == pytest.approx(ref, rel=5e-3)
     lon_c, lat_c, _ = xyz_to_lonlat_height(ov.centroid)
     assert 30.0 < lon_c < 30.04 and 10.0 < lat_c < 10.02
+
+
+def test_candidate_pairs_keep_every_overlapping_pair_and_drop_most_others():
+    """Oracle: a pair overlaps when a 24 x 24 grid of image a, at height 0, lands inside image b."""
+    rng = np.random.default_rng(5)
+    cams = {}
+    for k in range(40):
+        kind = "frame" if k % 2 else "linescan"
+        cams[f"im{k}"] = pointed_camera(kind, 30.0 + rng.uniform(-0.6, 0.6), 10.0 + rng.uniform(-0.6, 0.6),
+                                        rng.uniform(-30.0, 30.0))
+    fps = {n: [footprint(c)] for n, c in cams.items()}
+    got = set(candidate_pairs(fps))
+    names = list(cams)
+    g = (np.arange(24) + 0.5) / 24
+    overlapping = set()
+    for i, a in enumerate(names):
+        L, S = np.meshgrid(g * cams[a].n_lines, g * cams[a].n_samples, indexing="ij")
+        X = cams[a].image_to_ground(L.ravel(), S.ravel(), height=0.0)
+        for b in names[i + 1:]:
+            li, sa = cams[b].ground_to_image(X, on_miss="nan")
+            inside = np.isfinite(li) & (li >= 0) & (li <= cams[b].n_lines) & (sa >= 0) & (sa <= cams[b].n_samples)
+            if inside.any():
+                overlapping.add((a, b))
+    n_all = len(names) * (len(names) - 1) // 2
+    print(f"{len(overlapping)} overlapping pairs, {len(got)} candidates, {n_all} pairs")
+    assert overlapping and overlapping <= got
+    assert len(got) < 0.5 * n_all
+    assert all(names.index(a) < names.index(b) for a, b in got)
+    # an image of unknown footprint pairs with every other
+    fps["im3"] = None
+    got = set(candidate_pairs(fps))
+    assert {p for p in got if "im3" in p} == {tuple(sorted(("im3", n), key=names.index)) for n in names if n != "im3"}
 
 
 def test_bad_input_no_overlap_single_image_unknown_names():

@@ -18,7 +18,7 @@ from .checkpoints import (ENU, TRACK, Triangulation, along_track_azimuth, block_
                           track_basis, triangulate)
 from .combinations import (best_combinations, combination_name, compare_with_exhaustive, evaluate_combination,
                            evaluate_combinations, progressive_selection, site_network, subset_network)
-from .footprint import Footprint, Overlap, footprint, laea_forward, laea_inverse, overlap, polygon_area
+from .footprint import Footprint, Overlap, candidate_pairs, footprint, laea_forward, laea_inverse, overlap, polygon_area
 from .geometry import (ViewGeometry, image_centre_point, image_geometry, pair_geometry, parallax_height_ratio,
                        shadow_tip_distance, view_geometry)
 from .plots import (plot_error_vs_convergence, plot_footprints, plot_matching_error, plot_pair_quantity,
@@ -27,7 +27,7 @@ from .theory import (NAC_MATCHING_ERROR, MatchingErrorModel, eq15_precision, fit
                      simulate_matching_errors)
 
 __all__ = [
-    "Footprint", "Overlap", "footprint", "overlap", "laea_forward", "laea_inverse", "polygon_area",
+    "Footprint", "Overlap", "footprint", "overlap", "candidate_pairs", "laea_forward", "laea_inverse", "polygon_area",
     "ViewGeometry", "view_geometry", "image_geometry", "pair_geometry", "shadow_tip_distance",
     "parallax_height_ratio", "image_centre_point",
     "TRACK", "ENU", "Triangulation", "along_track_azimuth", "track_basis", "check_point_errors", "block_check_errors",

@@ -14,15 +14,18 @@ that relative error (a few 1e-5), far below what planning needs.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial import ConvexHull
+from scipy.spatial import ConvexHull, cKDTree
 
 from ..camera.sensor import SensorModel
 from ..errors import EvaluationInputError, NoOverlapError
 
-__all__ = ["Footprint", "footprint", "overlap", "Overlap", "laea_forward", "laea_inverse", "polygon_area"]
+__all__ = ["Footprint", "footprint", "overlap", "Overlap", "laea_forward", "laea_inverse", "polygon_area",
+           "candidate_pairs"]
 
 Array = NDArray[np.float64]
 
@@ -238,3 +241,53 @@ def overlap(a: Footprint, b: Footprint, names: tuple[str, str] = ("image 1", "im
     cen = laea_inverse(_polygon_centroid(inter), centre, a.radius)
     return Overlap(area, area / smaller, cen, laea_inverse(inter, centre, a.radius))
 
+
+
+def candidate_pairs(footprints: Mapping[str, Sequence[Footprint] | None],
+                    margin: float = 0.0) -> list[tuple[str, str]]:
+    """Image pairs whose footprints can meet: a spherical-cap test over a k-d tree, O(n log n).
+
+    Every image is bounded by the cap about the mean direction of its border points (at all the
+    heights given) that holds every border point; two images are candidates when their caps meet.
+    The test is conservative: a pair whose footprints overlap is always returned (the caps contain
+    the footprints' convex hulls), a returned pair may still be disjoint. This replaces the n(n-1)/2
+    exact overlap tests of a large block by about ``n x neighbours``.
+
+    Parameters
+    ----------
+    footprints : mapping name -> sequence of Footprint, or None
+        Each image's footprints (e.g. at the lowest and highest terrain height); ``None`` for an
+        image whose footprint is unknown (it looks past the limb): it is paired with every image.
+    margin : float
+        Extra angle added to the sum of the caps' radii, radians.
+
+    Returns
+    -------
+    list of (str, str)
+        Pairs ``(a, b)`` with ``a`` before ``b`` in the mapping's order, sorted in that order.
+    """
+    names = list(footprints)
+    order = {n: k for k, n in enumerate(names)}
+    known = [n for n in names if footprints[n]]
+    unknown = [n for n in names if not footprints[n]]
+    centres = np.zeros((len(known), 3))
+    radii = np.zeros(len(known))
+    for k, n in enumerate(known):
+        xyz = np.concatenate([np.asarray(f.xyz, float) for f in footprints[n]])  # type: ignore[union-attr]
+        u = _unit(xyz)
+        c = _unit(u.mean(axis=0))
+        centres[k] = c
+        radii[k] = float(np.max(np.arccos(np.clip(u @ c, -1.0, 1.0))))
+    pairs: set[tuple[int, int]] = set()
+    if len(known) > 1:
+        reach = min(np.pi, 2.0 * float(radii.max()) + margin)
+        tree = cKDTree(centres)
+        cand = np.array(sorted(tree.query_pairs(2.0 * np.sin(reach / 2.0) + 1e-12)), dtype=np.int64).reshape(-1, 2)
+        if cand.size:
+            i, j = cand[:, 0], cand[:, 1]
+            angle = np.arccos(np.clip(np.sum(centres[i] * centres[j], axis=1), -1.0, 1.0))
+            keep = angle <= radii[i] + radii[j] + margin
+            pairs.update((order[known[a]], order[known[b]]) for a, b in zip(i[keep], j[keep]))
+    for u_name in unknown:
+        pairs.update((min(order[u_name], k), max(order[u_name], k)) for k in range(len(names)) if k != order[u_name])
+    return [(names[a], names[b]) for a, b in sorted(pairs)]

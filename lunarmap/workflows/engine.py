@@ -2,10 +2,15 @@
 
 The graph (every node a step of :mod:`.steps`, named ``<stage>-<key>``)::
 
-    per image      isd -> rpc
+    per image      isd -> rpc, isd -> footprint
     per tile       detect
-    per pair       match  (skipped, and recorded as such, when the footprints do not overlap)
+    per pair       match  (skipped, and recorded as such, when the footprints overlap too little)
     block          tiepoints -> adjust (quality control: the tie points' variance factor) -> kernels
+
+:func:`run` computes it in two phases: the per-image steps first, then the pairs whose footprints can
+meet (:func:`lunarmap.evaluate.candidate_pairs`, a k-d tree over footprint caps) and the block. A block
+of n images thus has about ``n x neighbours`` match steps rather than ``n (n - 1) / 2``; pairs found
+apart are counted in the summary (``pairs_apart``), not listed.
 
 Keys are computed before anything runs, from the inputs' content and the parameters
 (:mod:`.store`), so a rerun skips every finished step and a changed parameter reruns exactly what
@@ -32,8 +37,8 @@ import xarray as xr
 
 from ..errors import ConfigError, WorkflowError
 from .config import RunConfig, load_config
-from .steps import (Done, adjust_step, as_dict, detect_step, isd_step, kernels_step, match_step, provenance,
-                    rpc_step, tiepoints_step)
+from .steps import (Done, adjust_step, as_dict, detect_step, footprint_step, isd_step, kernels_step, match_step,
+                    provenance, read_pixels, rpc_step, tiepoints_step)
 from .store import Store, file_digest, files_digest, step_key
 
 __all__ = ["RunResult", "run", "build_graph", "STAGES"]
@@ -41,7 +46,7 @@ __all__ = ["RunResult", "run", "build_graph", "STAGES"]
 _log = logging.getLogger(__name__)
 
 #: Stages in graph order.
-STAGES = ("isd", "rpc", "detect", "match", "tiepoints", "adjust", "kernels")
+STAGES = ("isd", "footprint", "rpc", "detect", "match", "tiepoints", "adjust", "kernels")
 
 
 @dataclass
@@ -90,14 +95,27 @@ class RunResult:
 @dataclass
 class _Graph:
     tasks: dict[str, Any]            # dask key -> Delayed, every step
-    targets: list[Any]               # the sinks to compute
     stage_of: dict[str, str]         # dask key -> stage
     names: list[str]
     pairs: list[tuple[str, str]]
+    apart: int = 0                   # pairs left out because their footprints cannot meet
 
 
-def build_graph(cfg: RunConfig, store: Store) -> _Graph:
-    """The run's graph of store-aware steps (nothing is computed)."""
+def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None,
+                images_only: bool = False) -> _Graph:
+    """The run's graph of store-aware steps (nothing is computed).
+
+    Parameters
+    ----------
+    cfg : RunConfig
+    store : Store
+    done : dict dask key -> result, optional
+        Results of steps already computed in this run (the per-image phase). They enter the graph as
+        values, not tasks; given the footprints among them, only the pairs whose footprints can meet
+        get match steps. Without, every pair of images gets one.
+    images_only : bool
+        Only the per-image steps (isd, footprint, rpc, detect): the first phase of :func:`run`.
+    """
     from ..matching import DetectParams, MatchParams, TiePointParams
     from ..matching.tiepoints import tile_windows
     from ..spice import KernelSet
@@ -111,19 +129,23 @@ def build_graph(cfg: RunConfig, store: Store) -> _Graph:
     tasks: dict[str, Any] = {}
     stage_of: dict[str, str] = {}
 
-    def node(stage: str, key: str, fn: Callable[..., Done], *args: Any) -> Any:
+    def node(stage: str, key: str, fn: Callable[..., Any], *args: Any) -> Any:
         name = f"{stage}-{key}"
+        if done is not None and name in done:
+            return done[name]
         if name not in tasks:
             tasks[name] = dask.delayed(fn, pure=False)(*args, dask_key_name=name)
             stage_of[name] = stage
         return tasks[name]
 
     names = [im.name for im in cfg.images]
-    isd, rpc, tiles, isd_key, tile_keys, pix = {}, {}, {}, {}, {}, {}
+    isd, rpc, tiles, isd_key, tile_keys, pix, foot = {}, {}, {}, {}, {}, {}, {}
     halo = params.detect.border + params.detect.window + params.detect.nms
+    heights = [float(min(cfg.rpc_height_range)), float(max(cfg.rpc_height_range))]
+    if cfg.dtm is not None:
+        dtm_values = read_pixels(cfg.dtm).values
+        heights = [min(heights[0], float(np.nanmin(dtm_values))), max(heights[1], float(np.nanmax(dtm_values)))]
     for im in cfg.images:
-        from .steps import read_pixels
-
         try:
             pix[im.name] = file_digest(im.pixels)
             shape = tuple(int(v) for v in read_pixels(im.pixels).shape)
@@ -133,6 +155,7 @@ def build_graph(cfg: RunConfig, store: Store) -> _Graph:
         isd_key[im.name] = step_key("isd", None, [file_digest(im.label), kernels_digest])
         isd[im.name] = node("isd", isd_key[im.name], isd_step, store, isd_key[im.name], im.name, str(im.label),
                             str(cfg.metakernel))
+        foot[im.name] = node("footprint", isd_key[im.name], footprint_step, isd[im.name], tuple(heights))
         if cfg.rpc_enabled:
             k = step_key("rpc", list(cfg.rpc_height_range), [isd_key[im.name]])
             rpc[im.name] = node("rpc", k, rpc_step, store, k, isd[im.name], cfg.rpc_height_range)
@@ -142,18 +165,27 @@ def build_graph(cfg: RunConfig, store: Store) -> _Graph:
             tiles[im.name].append(node("detect", k, detect_step, store, k, im.name, str(im.pixels), core, pad,
                                        params.detect, params.match.saturation))
             tile_keys[im.name].append(k)
+    if images_only:
+        return _Graph(tasks, stage_of, names, [])
+    candidates = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
+    apart = 0
+    if done is not None and all(isinstance(v, (list, type(None))) for v in foot.values()):
+        from ..evaluate.footprint import candidate_pairs
+
+        n_all = len(candidates)
+        candidates = candidate_pairs(foot)
+        apart = n_all - len(candidates)
     dtm = str(cfg.dtm) if cfg.dtm is not None else None
     dtm_digest = file_digest(cfg.dtm) if cfg.dtm is not None else ""
     pairs, matches, match_keys = [], [], []
     spec = {im.name: im for im in cfg.images}
-    for i, a in enumerate(names):
-        for b in names[i + 1:]:
-            k = step_key("match", [repr(params.match), repr(params.ransac), cfg.min_overlap],
-                         [pix[a], pix[b], isd_key[a], isd_key[b], dtm_digest, *tile_keys[a]])
-            matches.append(node("match", k, match_step, store, k, (a, b), (str(spec[a].pixels), str(spec[b].pixels)),
-                                (isd[a], isd[b]), tiles[a], dtm, params, cfg.min_overlap))
-            pairs.append((a, b))
-            match_keys.append(k)
+    for a, b in candidates:
+        k = step_key("match", [repr(params.match), repr(params.ransac), cfg.min_overlap],
+                     [pix[a], pix[b], isd_key[a], isd_key[b], dtm_digest, *tile_keys[a]])
+        matches.append(node("match", k, match_step, store, k, (a, b), (str(spec[a].pixels), str(spec[b].pixels)),
+                            (isd[a], isd[b]), tiles[a], dtm, params, cfg.min_overlap))
+        pairs.append((a, b))
+        match_keys.append(k)
     k_tie = step_key("tiepoints", params.track_tol, match_keys)
     ties = node("tiepoints", k_tie, tiepoints_step, store, k_tie, names, pairs, matches, params.track_tol, attrs)
     nav = None
@@ -173,24 +205,29 @@ def build_graph(cfg: RunConfig, store: Store) -> _Graph:
     k_ker = step_key("kernels", None, [k_adj, kernels_digest])
     ker = node("kernels", k_ker, kernels_step, store, k_ker, names, adj, [isd[n] for n in names],
                str(cfg.metakernel))
-    targets = [ker, *rpc.values()]
-    return _Graph(tasks, targets, stage_of, names, pairs)
+    return _Graph(tasks, stage_of, names, pairs, apart)
 
 
 class _Progress:
     """Tasks done per stage, logged when a stage completes and at most every ``every`` seconds."""
 
     def __init__(self, stage_of: dict[str, str], every: float = 5.0) -> None:
-        self.stage_of = stage_of
+        self.stage_of: dict[str, str] = {}
         self.total = {s: 0 for s in STAGES}
-        for s in stage_of.values():
-            self.total[s] += 1
+        self.add(stage_of)
         self.done = {s: 0 for s in STAGES}
         self.records: list[Done] = []
         self.start = time.perf_counter()
         self.stage_seconds: dict[str, float] = {}
         self.every = every
         self._last = 0.0
+
+    def add(self, stage_of: dict[str, str]) -> None:
+        """Count the tasks of another phase."""
+        for k, st in stage_of.items():
+            if k not in self.stage_of:
+                self.stage_of[k] = st
+                self.total[st] += 1
 
     def finished(self, key: str, result: Any) -> None:
         stage = self.stage_of.get(key)
@@ -209,8 +246,10 @@ class _Progress:
                                                   if self.total[s]))
 
 
-def _execute(graph: _Graph, scheduler: Any, progress: _Progress) -> None:
+def _execute(graph: _Graph, scheduler: Any, progress: _Progress) -> dict[str, Any]:
+    """Compute every task of ``graph``; returns dask key -> result."""
     keys = list(graph.tasks)
+    results: dict[str, Any] = {}
     delayed = [graph.tasks[k] for k in keys]
     if hasattr(scheduler, "compute") and hasattr(scheduler, "submit"):   # a distributed.Client
         from distributed import as_completed
@@ -222,19 +261,21 @@ def _execute(graph: _Graph, scheduler: Any, progress: _Progress) -> None:
                 err = fut.exception()
                 if err is not None:
                     raise err
-                progress.finished(by_key[fut.key], fut.result())
+                results[by_key[fut.key]] = fut.result()
+                progress.finished(by_key[fut.key], results[by_key[fut.key]])
         except BaseException:
             for f in futures:
                 f.cancel()
             raise
-        return
+        return results
     from dask.callbacks import Callback
 
     def post(key: Any, result: Any, dsk: Any, state: Any, worker_id: Any) -> None:
         progress.finished(key if isinstance(key, str) else str(key), result)
 
     with Callback(posttask=post):
-        dask.compute(*delayed, scheduler=scheduler)
+        values = dask.compute(*delayed, scheduler=scheduler)
+    return dict(zip(keys, values))
 
 
 def _export(cfg: RunConfig, graph: _Graph, records: list[Done]) -> tuple[dict[str, Path], dict[str, Any]]:
@@ -275,6 +316,8 @@ def _export(cfg: RunConfig, graph: _Graph, records: list[Done]) -> tuple[dict[st
     steps = [as_dict(d) for d in records]
     skipped = [d for d in by_stage.get("match", []) if d.note.startswith("skipped")]
     summary["skipped_pairs"] = [f"{d.item}: {d.note}" for d in skipped]
+    summary["pairs_apart"] = int(graph.apart)
+    summary["pairs_candidate"] = len(graph.pairs)
     (cfg.output / "steps.json").write_text(json.dumps(steps, indent=1))
     return files, summary
 
@@ -312,16 +355,22 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
         root.setLevel(logging.INFO)
     client = cluster = None
     try:
-        graph = build_graph(cfg, store)
-        _log.info("run %s: %d images, %d pairs, %d steps -> %s", cfg.name or cfg.source, len(graph.names),
-                  len(graph.pairs), len(graph.tasks), cfg.output)
-        progress = _Progress(graph.stage_of)
+        first = build_graph(cfg, store, images_only=True)
+        _log.info("run %s: %d images, %d per-image steps -> %s", cfg.name or cfg.source, len(first.names),
+                  len(first.tasks), cfg.output)
+        progress = _Progress(first.stage_of)
         sched: Any = scheduler
         if scheduler is None or (isinstance(scheduler, str) and scheduler not in ("sync", "threads",
                                                                                    "synchronous", "processes")):
             client, cluster = _client(scheduler, workers, cfg)
             sched = client
             _log.info("dask dashboard: %s", client.dashboard_link)
+        done = _execute(first, sched, progress)
+        graph = build_graph(cfg, store, done=done)
+        n_all = len(graph.names) * (len(graph.names) - 1) // 2
+        _log.info("pairs: %d of %d whose footprints can meet; %d block steps", len(graph.pairs), n_all,
+                  len(graph.tasks))
+        progress.add(graph.stage_of)
         _execute(graph, sched, progress)
         files, summary = _export(cfg, graph, progress.records)
         result = RunResult(cfg, cfg.output, summary, files, progress.records, progress.stage_seconds)

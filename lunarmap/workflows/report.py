@@ -151,7 +151,9 @@ def write_report(result: Any) -> Path:
 
     rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(fmt(val))}</td></tr>" for k, val in [
         ("configuration", result.config.source), ("images", len(names)),
-        ("pairs skipped (no overlap)", len(summary.get("skipped_pairs", []))),
+        ("pairs whose footprints cannot meet (not matched)", summary.get("pairs_apart", 0)),
+        ("pairs matched", summary.get("pairs_candidate", 0) - len(summary.get("skipped_pairs", []))),
+        ("pairs skipped (overlap below min_overlap)", len(summary.get("skipped_pairs", []))),
         ("points", summary.get("n_points")), ("image observations", summary.get("n_observations")),
         ("sigma0", f"{summary.get('sigma0', float('nan')):.4f}"),
         ("tie-point sigma scale (variance components)", f"{summary.get('tie_sigma_scale', float('nan')):.3f}"),

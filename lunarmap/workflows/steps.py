@@ -24,7 +24,7 @@ from ..camera.geodesy import MOON_GEOGRAPHIC_CRS
 from ..errors import LunarmapError, WorkflowError
 from .store import Store
 
-__all__ = ["Done", "isd_step", "rpc_step", "detect_step", "match_step", "tiepoints_step", "adjust_step",
+__all__ = ["Done", "isd_step", "rpc_step", "detect_step", "footprint_step", "match_step", "tiepoints_step", "adjust_step",
            "kernels_step", "read_pixels", "provenance"]
 
 
@@ -220,6 +220,19 @@ def _overlap(cam_a: Any, cam_b: Any, height: float) -> float:
         return 0.0
     li, sa = cam_b.ground_to_image(g[ok], on_miss="nan")
     return float(np.count_nonzero(np.isfinite(li) & np.isfinite(sa))) / L.size
+
+
+def footprint_step(isd: Done, heights: tuple[float, ...]) -> list[Any] | None:
+    """An image's footprints at the given heights (metres), for choosing the pairs to match; ``None`` when
+    its border misses the Moon (the image is then paired with every other)."""
+    from ..errors import NoOverlapError
+    from ..evaluate.footprint import footprint
+
+    cam = _camera(isd)
+    try:
+        return [footprint(cam, height=float(h), per_side=8, name=isd.item) for h in heights]
+    except NoOverlapError:
+        return None
 
 
 @_one_blas_thread
