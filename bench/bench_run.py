@@ -43,6 +43,7 @@ def direct(cfg) -> dict:
     from lunarmap.adjust.export import adjusted_image_support
     from lunarmap.adjust.variance import estimate_image_variances
     from lunarmap.blas import single_threaded_blas
+    from lunarmap.evaluate.footprint import candidate_pairs, footprint
     from lunarmap.matching import DetectParams, MatchParams, TiePointParams
     from lunarmap.orientation.kernels import write_orientation_kernels
     from lunarmap.workflows.steps import _overlap, read_pixels
@@ -65,8 +66,11 @@ def direct(cfg) -> dict:
         dtm = read_pixels(cfg.dtm) if cfg.dtm else 0.0
         mean_h = float(np.nanmean(dtm.values)) if cfg.dtm else 0.0
         names = [im.name for im in cfg.images]
-        pairs = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]
-                 if _overlap(cams[a], cams[b], mean_h) >= cfg.min_overlap]
+        lo, hi = min(cfg.rpc_height_range), max(cfg.rpc_height_range)
+        if cfg.dtm:
+            lo, hi = min(lo, float(np.nanmin(dtm.values))), max(hi, float(np.nanmax(dtm.values)))
+        fps = {n: [footprint(cams[n], height=h, per_side=8) for h in (lo, hi)] for n in names}
+        pairs = [(a, b) for a, b in candidate_pairs(fps) if _overlap(cams[a], cams[b], mean_h) >= cfg.min_overlap]
         params = TiePointParams(detect=DetectParams(cell=cfg.cell), match=MatchParams(search=cfg.search))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -160,6 +164,16 @@ def main() -> None:
     print("stage end times, serial (s):", {k: round(v, 1) for k, v in stages["serial"][-1].items()})
     print("stage end times, cluster (s):", {k: round(v, 1) for k, v in stages["cluster"][-1].items()})
     print("sigma0:", {k: round(v, 10) for k, v in sigma0.items()})
+    per_task = {}
+    for st in ("isd", "footprint", "rpc", "detect", "match", "tiepoints", "adjust", "kernels"):
+        sec = [d.seconds for d in res.done if d.step == st and d.computed]
+        if sec:
+            per_task[st] = {"n": len(sec), "median_s": statistics.median(sec), "max_s": max(sec), "sum_s": sum(sec)}
+            print(f"  {st:10} {len(sec):5d} tasks  median {statistics.median(sec):7.3f} s  max {max(sec):7.2f} s  "
+                  f"sum {sum(sec):7.1f} s")
+    print(f"pairs: {res.summary['pairs_candidate']} candidates ({len(res.summary['skipped_pairs'])} skipped by the "
+          f"overlap threshold), {res.summary['pairs_apart']} apart; "
+          f"{res.summary['n_points']} points, {res.summary['n_observations']} observations")
     shot = None
     if args.screenshot and again.report is not None:
         png = again.report.with_name("screenshot.png")
@@ -175,7 +189,7 @@ def main() -> None:
         fh.write(json.dumps({"date": time.strftime("%Y-%m-%d %H:%M"), "machine": platform.node(),
                              "images": len(cfg.images), "workers": args.workers, "rounds": args.rounds,
                              "median_s": med, "rerun_s": t_rerun, "load": os.getloadavg()[0],
-                             "stages_serial": stages["serial"][-1], "stages_cluster": stages["cluster"][-1],
+                             "stages_serial": stages["serial"][-1], "stages_cluster": stages["cluster"][-1], "per_task": per_task,
                              "screenshot": shot}) + "\n")
 
 

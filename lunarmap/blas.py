@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import sys
 import threading
 from typing import Callable, Iterator
 
@@ -30,16 +31,18 @@ __all__ = ["single_threaded_blas"]
 
 _lock = threading.Lock()
 _depth = 0
-_saved: int | None = None
-_api: tuple[Callable[[], int], Callable[[int], None]] | None | bool = False  # False: not looked up yet
+_saved: list[int] | None = None
+_api: list[tuple[Callable[[], int], Callable[[int], None]]] | None = None  # None: not looked up yet
 
 
-def _find_api() -> tuple[Callable[[], int], Callable[[int], None]] | None:
+def _find_api() -> list[tuple[Callable[[], int], Callable[[int], None]]]:
+    """(get, set) thread-count functions of every OpenBLAS in the process (numpy and scipy each ship one)."""
     try:
         with open("/proc/self/maps", encoding="ascii", errors="replace") as fh:
             paths = {ln.split()[-1] for ln in fh if "openblas" in ln.lower() and ln.split()[-1].startswith("/")}
     except OSError:
-        return None
+        return []
+    found = []
     for path in sorted(paths):
         try:
             lib = ctypes.CDLL(path)
@@ -52,8 +55,9 @@ def _find_api() -> tuple[Callable[[], int], Callable[[int], None]] | None:
             if get is not None and put is not None:
                 get.restype = ctypes.c_int
                 put.argtypes = [ctypes.c_int]
-                return get, put
-    return None
+                found.append((get, put))
+                break
+    return found
 
 
 @contextlib.contextmanager
@@ -61,18 +65,21 @@ def single_threaded_blas() -> Iterator[None]:
     """Context in which OpenBLAS uses one thread; restores the previous count on exit."""
     global _depth, _saved, _api
     with _lock:
-        if _api is False:
+        if _api is None:
             _api = _find_api()
-        if _api and _depth == 0:
-            get, put = _api  # type: ignore[misc]
-            _saved = int(get())
-            put(1)
+        if _depth == 0:
+            _saved = [int(get()) for get, _ in _api]
+            for _, put in _api:
+                put(1)
         _depth += 1
     try:
         yield
     finally:
         with _lock:
             _depth -= 1
-            if _api and _depth == 0 and _saved is not None:
-                _api[1](_saved)  # type: ignore[index]
+            if _depth == 0 and _saved is not None:
+                for (_, put), n in zip(_api, _saved):
+                    put(n)
                 _saved = None
+                if "scipy.linalg" not in sys.modules:
+                    _api = None     # scipy's own OpenBLAS is loaded with scipy.linalg: look again next time

@@ -35,6 +35,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from ..blas import single_threaded_blas
 from ..errors import AdjustmentDivergedError, DatumDefectError
 from .factor import Factorizer
 from .problem import BundleProblem
@@ -221,7 +222,8 @@ def _check_datum(S0: sp.csr_matrix, backend: str) -> None:
     s = 1.0 / np.sqrt(d)
     Sn = sp.diags(s) @ S0 @ sp.diags(s)
     if Sn.shape[0] <= 1500:
-        ev = np.linalg.eigvalsh(Sn.toarray())
+        with single_threaded_blas():       # see factor._dense: threads only spin at this size
+            ev = np.linalg.eigvalsh(Sn.toarray())
         if ev[0] <= 1e-10 * ev[-1]:
             raise DatumDefectError(
                 f"the normal equations are rank deficient (smallest/largest scaled eigenvalue "
