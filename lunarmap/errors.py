@@ -52,6 +52,9 @@ __all__ = [
     "MissingClockError",
     "TrajectoryFitError",
     "BlockMissionError",
+    "QualityControlError",
+    "QualityControlInputError",
+    "VarianceComponentError",
 ]
 
 
@@ -244,3 +247,20 @@ class TrajectoryFitError(OrientationKernelError, ConvergenceError):
 
 class BlockMissionError(InvalidInputError, FileNotFoundError):
     """A synthetic block-mission folder is missing, incomplete or does not match its manifest."""
+
+
+# --- Quality control of the adjustment (issue 11: lunarmap.adjust.qc) -------------------------------
+
+class QualityControlError(AdjustmentError):
+    """Quality control of an adjustment (pre-screening, robust reweighting, data snooping, variance
+    components, offset/drift detection) cannot go on; the message names the step and the cause."""
+
+
+class QualityControlInputError(QualityControlError, AdjustmentInputError):
+    """A quality-control setting is unusable: a limit <= 0, an unknown step or weight function, groups
+    that do not fit the block."""
+
+
+class VarianceComponentError(QualityControlError, AdjustmentInputError):
+    """A group of observations has too little redundancy for its variance component to be estimated
+    (the message names the group and its redundancy)."""

@@ -47,6 +47,7 @@ __all__ = ["Precision", "posterior_precision", "ordered_track_pairs", "reduced_i
 #: largest diagonal element of the Jacobi-scaled inverse accepted as a defined datum
 MAX_SCALED_VARIANCE = 1e13
 #: smallest/largest eigenvalue ratio of a point's normal block below which the point is undetermined
+#: (1e-10: rays within ~0.0006 degrees of parallel; its inverse block is then rounding noise)
 UNDETERMINED_POINT_RATIO = 1e-10
 #: reduced systems up to this size also keep the dense ``Q_red``
 DENSE_Q_LIMIT = 1500
@@ -501,7 +502,8 @@ _point_cov_kernel = numba.njit(cache=True)(_point_cov_py) if numba is not None e
 
 
 def posterior_precision(result, method: str = "auto", redundancy: bool = False,
-                        scale_by_sigma0: bool = True, backend: str = "auto", inverse_method: str = "auto") -> Precision:
+                        scale_by_sigma0: bool = True, backend: str = "auto", inverse_method: str = "auto",
+                        undetermined_ratio: float = UNDETERMINED_POINT_RATIO) -> Precision:
     """Covariances of all adjusted parameters of ``result`` (an ``AdjustmentResult``).
 
     Parameters
@@ -519,6 +521,9 @@ def posterior_precision(result, method: str = "auto", redundancy: bool = False,
         Factorisation backend of the sparse method (:class:`lunarmap.adjust.factor.Factorizer`).
     inverse_method : str
         How the sparse method gets the blocks of ``S^-1`` (:func:`reduced_inverse`).
+    undetermined_ratio : float
+        Points whose normal block's smallest/largest eigenvalue ratio is below this are treated as
+        undetermined (infinite covariance; their null direction does not weigh on the images).
 
     Raises
     ------
@@ -541,7 +546,7 @@ def posterior_precision(result, method: str = "auto", redundancy: bool = False,
     terms = Terms(pb)
     fixed_pt = pb.point_fixed()
     lin = linearize(pb, result.state, st, terms, fixed_pt)
-    undetermined = _regularize_undetermined_points(lin.V, ~fixed_pt)
+    undetermined = _regularize_undetermined_points(lin.V, ~fixed_pt, undetermined_ratio)
     S, _, Vinv, _ = reduced_system(lin, st, terms, 0.0, result.free_red)
     inv = reduced_inverse(S, result.free_red, st.block_row, st.block_col, p, st.n_cam, backend=backend,
                           method=inverse_method)
@@ -633,7 +638,7 @@ def _term_redundancy(pb, lin, terms, lookup) -> list | None:
     return out
 
 
-def _regularize_undetermined_points(V: NDArray, active: NDArray) -> NDArray:
+def _regularize_undetermined_points(V: NDArray, active: NDArray, ratio: float = UNDETERMINED_POINT_RATIO) -> NDArray:
     """Indices of points whose normal block is numerically singular; their ``V`` is made regular in place.
 
     A point whose rays have become (nearly) parallel, e.g. one that drifted far along its rays
@@ -647,11 +652,11 @@ def _regularize_undetermined_points(V: NDArray, active: NDArray) -> NDArray:
     if idx.size == 0:
         return idx
     ev = np.linalg.eigvalsh(V[idx])
-    bad = idx[~(ev[:, 0] > UNDETERMINED_POINT_RATIO * ev[:, 2])]
+    bad = idx[~(ev[:, 0] > ratio * ev[:, 2])]
     if bad.size:
         lam, E = np.linalg.eigh(V[bad])
         top = np.maximum(lam[:, 2:3], 1e-300)
-        lam = np.where(lam > UNDETERMINED_POINT_RATIO * top, lam, top)
+        lam = np.where(lam > ratio * top, lam, top)
         V[bad] = np.einsum("nij,nj,nkj->nik", E, lam, E)
     return bad
 
