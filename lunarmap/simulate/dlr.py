@@ -51,6 +51,10 @@ VARIANCE_EXAMPLES = {
     # the gross-error experiments (Tables 2-3; the paper does not list their sigmas): example I's
     # image and control sigmas, the first orbit's navigation sigmas on both orbits
     "blunders": dict(image_mm=(0.02, 0.005), position_m=(100.0, 100.0), attitude_deg=(0.01, 0.01), control_m=200.0),
+    # the offset/drift experiments (Tables 6-7; sigmas not given): as "blunders", with control points good
+    # enough (20 m) to fix each orbit's absolute orientation -- with 200 m control a 0.5 degree kappa offset
+    # of one orbit cannot be told from -0.5 degrees of the other
+    "offsets": dict(image_mm=(0.02, 0.005), position_m=(100.0, 100.0), attitude_deg=(0.01, 0.01), control_m=20.0),
 }
 #: Tables 6-7: (orbit, paper axis, offset in m or deg, drift in m/km or deg/km)
 OFFSET_EXAMPLES = {
