@@ -343,9 +343,12 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
         Stop when every estimated factor ``s_k^2`` is within ``1 +- tol``.
     min_redundancy : float
         A group with less redundancy cannot be estimated.
-    on_weak : {"raise", "keep"}
-        What to do with such a group: raise :class:`~lunarmap.errors.VarianceComponentError`, or
-        keep its a-priori sigma (``estimated`` False).
+    on_weak : {"raise", "keep", "freeze"}
+        What to do with such a group -- or with one whose redundancy collapses while its sigma keeps
+        shrinking (the boundary of the estimate: the data cannot tell it from another group, e.g.
+        a narrow camera's navigation positions from its attitudes): raise
+        :class:`~lunarmap.errors.VarianceComponentError`, keep its a-priori sigma, or freeze it
+        where the iteration took it (both with ``estimated`` False).
     start : AdjustmentResult, optional
         Start values of the first adjustment.
     accelerate : bool
@@ -360,8 +363,8 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
     """
     from ..errors import QualityControlInputError
 
-    if on_weak not in ("raise", "keep"):
-        raise QualityControlInputError(f"on_weak must be 'raise' or 'keep', got {on_weak!r}")
+    if on_weak not in ("raise", "keep", "freeze"):
+        raise QualityControlInputError(f"on_weak must be 'raise', 'keep' or 'freeze', got {on_weak!r}")
     if not (tol > 0 and min_redundancy > 0):
         raise QualityControlInputError(f"tol and min_redundancy must be > 0, got {tol}, {min_redundancy}")
     k = groups.n
@@ -377,6 +380,16 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
     history = []
     cam, pts = (None, None) if start is None else (start.cam_params, start.points)
     result = solve(reweighted_problem(problem, w, cam, pts, terms), opts)
+    f, r, _, n = group_variance_factors(result, groups)
+    few = est & (n <= min_redundancy)          # a group's redundancy never exceeds its observation count
+    if few.any():
+        if on_weak == "raise":
+            j = int(np.argmax(few))
+            raise VarianceComponentError(
+                f"group {groups.names[j]!r} has redundancy {r[j]:.2f} ({int(n[j])} observations): its variance "
+                f"component cannot be estimated (needs >= {min_redundancy:g}); merge it with another group, or "
+                f"keep its a-priori sigma (on_weak='keep')")
+        est &= ~few
     converged = False
     # Anderson acceleration of the fixed-point iteration x <- x + log f(x) on the log variance
     # scales: groups that the data separate poorly (navigation positions vs attitudes of a narrow
@@ -385,6 +398,7 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
     fs: list[NDArray] = []
     x = np.zeros(k)
     saved = None
+    scales: list[NDArray] = []
     for _ in range(max(rounds, 1)):
         f, r, _, n = group_variance_factors(result, groups)
         # a group with (numerically) no redundancy in this round cannot move: its factor is 0 / 0
@@ -397,7 +411,12 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
         history.append(f.copy())
         # a group whose redundancy has collapsed is at the boundary (its sigma heading to 0: the data
         # cannot tell it from another group, e.g. positions from attitudes): decide on it now
-        collapsed = est & (r < BOUNDARY_REDUNDANCY) & (f < 1.0) & (len(history) > 3)
+        scales.append(total.copy())
+        shrinking = np.zeros(k, bool)
+        if len(scales) > 10:
+            last = np.array(scales[-6:])
+            shrinking = np.all(np.diff(last, axis=0) < 0.0, axis=0)
+        collapsed = est & (r < BOUNDARY_REDUNDANCY) & (f < 1.0) & shrinking
         if collapsed.any() or (np.all(np.abs(f[live] - 1.0) <= tol) and live.any()):
             weak = est & (~(r >= min_redundancy) | collapsed)
             if not weak.any():
@@ -409,12 +428,14 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
                     f"group {groups.names[j]!r} has redundancy {r[j]:.2f} ({int(n[j])} observations): its variance "
                     f"component cannot be estimated (needs >= {min_redundancy:g}); merge it with another group, or "
                     f"keep its a-priori sigma (on_weak='keep')")
-            # keep: back to the a-priori sigma of the weak groups, estimate the others again
             est &= ~weak
-            back = np.where(weak, 1.0 / total, 1.0)
-            total *= back
-            x = np.where(weak, 0.0, x)
-            _apply_group_scale(w, groups, back)
+            if on_weak == "keep":
+                # back to the a-priori sigma of the weak groups, estimate the others again
+                back = np.where(weak, 1.0 / total, 1.0)
+                total *= back
+                x = np.where(weak, 0.0, x)
+                _apply_group_scale(w, groups, back)
+            # "freeze": the weak groups stay where the iteration took them
             xs, fs, saved = [], [], None
             result = solve(reweighted_problem(problem, w, result.cam_params, result.points, terms), opts)
             continue
@@ -438,6 +459,11 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
         _apply_group_scale(w, groups, step)
         result = solve(reweighted_problem(problem, w, result.cam_params, result.points, terms), opts)
     f, r, _, n = group_variance_factors(result, groups)
+    if not converged and on_weak == "raise" and np.any(est & ~(r >= min_redundancy)):
+        j = int(np.argmax(est & ~(r >= min_redundancy)))
+        raise VarianceComponentError(
+            f"group {groups.names[j]!r} has redundancy {r[j]:.2f} ({int(n[j])} observations) after {rounds} "
+            f"rounds: its variance component cannot be estimated (needs >= {min_redundancy:g})")
     scale = total * np.sqrt(np.where(est & np.isfinite(f) & (f > 0), f, 1.0))
     return VarianceComponents(list(groups.names), scale, scale / np.sqrt(2.0 * np.maximum(r, 1e-12)), r, n, est,
                               history, w, result, converged)

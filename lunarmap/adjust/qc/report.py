@@ -49,14 +49,16 @@ class QCReport:
         return out
 
     def to_dataset(self) -> xr.Dataset:
-        """Everything as one xarray Dataset (dimensions ``decision``, ``group``, ``offset_row``)."""
+        """Everything as one xarray Dataset: dimensions ``decision`` (the decisions' fields), ``obs_group``
+        (``group_*`` variables; ``acted_on (obs_group, qc_step)`` counts observations removed, down-weighted
+        or flagged per group and step) and ``offset_row`` (``offset_*``, every round)."""
         text = {"step", "kind", "action", "group"}
         ds = xr.Dataset({f: ("decision", np.array([getattr(d, f) for d in self.decisions],
                                                   dtype=object if f in text else float if f in ("value", "redundancy")
                                                   else np.int64)) for f in _FIELDS},
                         coords={"decision": np.arange(len(self.decisions))})
         if self.groups is not None:
-            g = self.groups.rename({k: f"group_{k}" for k in self.groups.data_vars})
+            g = self.groups.rename({k: f"group_{k}" for k in self.groups.data_vars}).rename({"group": "obs_group"})
             ds = ds.merge(g)
             steps = sorted({d.step for d in self.decisions})
             names = list(self.groups["group"].values)
@@ -64,8 +66,8 @@ class QCReport:
             for d in self.decisions:
                 if d.group in names and d.action in ("removed", "downweighted", "flagged"):
                     tab[names.index(d.group), steps.index(d.step)] += 1
-            ds["acted_on"] = (("group", "method"), tab)
-            ds = ds.assign_coords(method=np.array(steps, dtype=object))
+            ds["acted_on"] = (("obs_group", "qc_step"), tab)
+            ds = ds.assign_coords(qc_step=np.array(steps, dtype=object))
         if self.offsets:
             rows = []
             for r in self.offsets:
