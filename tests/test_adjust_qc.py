@@ -246,3 +246,40 @@ def test_quality_control_on_line_scan_cameras_and_rfms():
         removed = qc.removed_image_observations
         print(type(pb.model.sensors[0]).__name__, "removed", removed, "sigma0", qc.result.sigma0)
         assert i in removed and removed.size <= 2
+
+
+@pytest.mark.parametrize("fraction", [0.2, 0.5])
+def test_block_with_many_mismatched_tie_observations(fraction):
+    """20 % / 50 % of the tie-point observations of a simulated frame block displaced by 4-40 px (check points
+    measured cleanly): quality control (robust -> data snooping) converges and its check-point errors stay
+    within 1.5x those of the clean adjustment (bench/bench_qc.py --part mismatches does it with the matcher's
+    tie points of the rendered block mission)."""
+    import dataclasses
+
+    from blockhelp import frame_case
+    from lunarmap.adjust import ImageObservations
+
+    case = frame_case(orbits=3, per_orbit=8, points=600, n_check=20, seed=5)
+    pb = case.problem
+
+    def check_rms(res):
+        d = res.points[case.check] - case.true_points[case.check]
+        return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
+
+    clean = check_rms(solve(pb, SolverOptions(ftol=1e-10)))
+    rng = np.random.default_rng(int(fraction * 100))
+    cand = np.flatnonzero(~np.isin(pb.obs.pt_idx, case.check))
+    bad = cand[rng.random(cand.size) < fraction]
+    ang = rng.uniform(0, 2 * np.pi, bad.size)
+    xy = pb.obs.xy.copy()
+    xy[bad] += rng.uniform(4, 40, bad.size)[:, None] * np.column_stack([np.cos(ang), np.sin(ang)])
+    dirty = dataclasses.replace(pb, obs=ImageObservations(pb.obs.cam_idx, pb.obs.pt_idx, xy, pb.obs.sigma))
+    plain = check_rms(solve(dirty, SolverOptions(ftol=1e-10)))
+    qc = quality_control(dirty, ("robust", "baarda"), options=QCOptions(solver=SolverOptions(ftol=1e-10),
+                                                                          baarda=dict(per_round="point")))
+    got = check_rms(qc.result)
+    out = set(qc.removed_image_observations.tolist())
+    print(f"{fraction:.0%} mismatched: {len(out & set(bad.tolist()))} of {bad.size} out, {len(out - set(bad.tolist()))} "
+          f"good ones out; check-point RMS clean {clean:.0f} m, plain {plain:.0f} m, QC {got:.0f} m "
+          f"({got / clean:.2f}x)")
+    assert qc.result.converged and got <= 1.5 * clean and plain > 2.0 * clean

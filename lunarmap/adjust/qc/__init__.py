@@ -118,7 +118,7 @@ def _best_pair_start(problem: BundleProblem, units_per_km: float) -> BundleProbl
     centre (where its partials blow up); the best pair (:mod:`.sequent`) is a start free of it.
     Nothing is removed.
     """
-    seq = sequent_screening(problem, limit_km=1e12, units_per_km=units_per_km)
+    seq = sequent_screening(problem, limit_km=1e12, units_per_km=units_per_km, pairs_only=True)
     best = seq.points["best_pair"].values
     ok = np.all(best >= 0, axis=1) & ~problem.point_fixed()
     if problem.priors is not None:

@@ -97,6 +97,8 @@ class Ledger:
         if problem.priors is not None:
             self._control_pts[problem.priors.idx[~problem.priors.fixed]] = True
         self.result: AdjustmentResult | None = None
+        self._track_order = np.argsort(o.pt_idx, kind="stable")
+        self._track_start = np.searchsorted(o.pt_idx[self._track_order], np.arange(problem.n_points + 1))
         self._touched: set[int] = set()
         self._adjusted = False
         self.step = "adjust"      # the step running, for decisions taken inside adjust()
@@ -216,7 +218,8 @@ class Ledger:
                 self.decisions.append(Decision(step, rnd, "point", int(j), -1, int(j), -1, float(rays[j]), np.nan,
                                                "dropped", "point"))
                 # its remaining rays leave with it
-                left = np.flatnonzero((o.pt_idx == j) & act)
+                track = self._track_order[self._track_start[j]:self._track_start[j + 1]]
+                left = track[act[track]]
                 for i in left:
                     self.decisions.append(Decision(step, rnd, "image", int(i), int(o.cam_idx[i]), int(j), -1, np.nan,
                                                    np.nan, "dropped", self.obs_group(int(i))))

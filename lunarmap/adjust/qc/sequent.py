@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from ...errors import QualityControlInputError
 from ..intersection import intersect_points
+from ..precision import ordered_track_pairs
 from ..problem import BundleProblem
 
 __all__ = ["SequentResult", "sequent_screening"]
@@ -69,7 +70,8 @@ def _sigma_p(model, cam_params, cam_idx, set_idx, xy, sigma, n_sets) -> NDArray:
 
 
 def sequent_screening(problem: BundleProblem, limit_km: float = 10.0, units_per_km: float = 1000.0,
-                      active: NDArray | None = None, cam_params: NDArray | None = None) -> SequentResult:
+                      active: NDArray | None = None, cam_params: NDArray | None = None,
+                      pairs_only: bool = False) -> SequentResult:
     """Screen every conjugate point's rays (module docstring).
 
     Parameters
@@ -85,6 +87,8 @@ def sequent_screening(problem: BundleProblem, limit_km: float = 10.0, units_per_
         Observations to screen (others are ignored); default those with a non-zero weight.
     cam_params : ndarray, optional
         Image parameters to intersect with.
+    pairs_only : bool
+        Stop after the best pairs (step 1).
 
     Raises
     ------
@@ -110,16 +114,13 @@ def sequent_screening(problem: BundleProblem, limit_km: float = 10.0, units_per_
     pair_sigma = np.full(n_pt, np.nan)
     final_sigma = np.full(n_pt, np.nan)
     # 1. every pair of every point
-    pa, pb, pj = [], [], []
-    for j in np.flatnonzero(rays >= 2):
-        t = tracks[j]
-        a, b = np.triu_indices(t.size, 1)
-        pa.append(t[a])
-        pb.append(t[b])
-        pj.append(np.full(a.size, j))
+    act_idx = np.flatnonzero(act)
+    A, B = ordered_track_pairs(o.pt_idx[act_idx], n_pt)
+    keep_pair = A < B
+    A, B = act_idx[A[keep_pair]], act_idx[B[keep_pair]]
+    J = o.pt_idx[A]
     chosen: list[list[int]] = [[] for _ in range(n_pt)]
-    if pa:
-        A, B, J = np.concatenate(pa), np.concatenate(pb), np.concatenate(pj)
+    if A.size:
         n_pairs = A.size
         obs2 = np.concatenate([A, B])
         sets = np.concatenate([np.arange(n_pairs)] * 2)
@@ -128,17 +129,17 @@ def sequent_screening(problem: BundleProblem, limit_km: float = 10.0, units_per_
         srt = np.lexsort((s, J))
         first = np.ones(srt.size, bool)
         first[1:] = J[srt][1:] != J[srt][:-1]
-        for k in srt[first]:
-            j = J[k]
-            pair_sigma[j] = s[k]
-            best[j] = (A[k], B[k])
-            if s[k] <= limit:
-                chosen[j] = [int(A[k]), int(B[k])]
-            else:
-                status[j] = 2
-                keep[tracks[j]] = False
+        k = srt[first]
+        j = J[k]
+        pair_sigma[j] = s[k]
+        best[j, 0], best[j, 1] = A[k], B[k]
+        failed = j[s[k] > limit]
+        status[failed] = 2
+        keep[np.isin(o.pt_idx, failed) & act] = False
+        for jj, kk in zip(j[s[k] <= limit], k[s[k] <= limit]):
+            chosen[jj] = [int(A[kk]), int(B[kk])]
     # 2. one ray at a time, the best candidate first
-    while True:
+    while not pairs_only:
         cand_obs, cand_set, cand_pt, cand_new = [], [], [], []
         n_sets = 0
         for j in np.flatnonzero(status <= 1):
