@@ -136,6 +136,12 @@ def _best_pair_start(problem: BundleProblem, units_per_km: float) -> BundleProbl
                               o.xy[obs], o.sigma[obs], n_pt=pts.size).xyz
     good = np.all(np.isfinite(Xb), axis=1)
     X[pts[good]] = Xb[good]
+    # a pair of gross errors can intersect behind another camera of the point: keep those starts
+    with np.errstate(all="ignore"):
+        x = problem.model.project(problem.cam_params, o.cam_idx, X[o.pt_idx])
+    bad = np.zeros(problem.n_points, bool)
+    bad[o.pt_idx[~np.all(np.isfinite(x), axis=1)]] = True
+    X[bad] = problem.points[bad]
     return dataclasses.replace(problem, points=X)
 
 

@@ -26,7 +26,7 @@ from ..weights import Weights, reweighted_problem
 __all__ = ["Decision", "Ledger", "DEGENERATE_NORMAL"]
 
 #: a free point whose normal-block trace exceeds this multiple of the median point's sits on a projection centre
-DEGENERATE_NORMAL = 1e6
+DEGENERATE_NORMAL = 1e4
 
 
 @dataclass
@@ -166,13 +166,18 @@ class Ledger:
                 self.weights.dropped_points[j] = True
                 self.decisions.append(Decision(self.step, 0, "point", int(j), -1, int(j), -1, np.nan, np.nan,
                                                "dropped", "point on a projection centre"))
-            self.result = solve(self.problem(self.result), dataclasses.replace(opts, check_datum=False),
-                                reweight=reweight)
+            # held fixed with weight 0, but its projections must stay finite (0 * NaN is NaN in the cost):
+            # back to its start value
+            pts = self.result.points.copy()
+            pts[bad] = self.base.points[bad]
+            self.result = solve(reweighted_problem(self.base, self.weights, self.result.cam_params, pts, self.terms),
+                                dataclasses.replace(opts, check_datum=False), reweight=reweight)
         return self.result
 
     def _degenerate(self, res: AdjustmentResult) -> NDArray[np.int64]:
-        """Free tie points whose normal block is ~1e6 times the median point's: partials blown up near a
-        projection centre (a point cannot be there)."""
+        """Free tie points whose normal block is ``DEGENERATE_NORMAL`` times the median point's: partials blown
+        up near a projection centre (a point cannot be there; sigma and track length spread normal blocks
+        over two orders of magnitude at most)."""
         from ..normal import Terms, linearize
 
         pb = res.problem

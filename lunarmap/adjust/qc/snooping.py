@@ -211,7 +211,18 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
     rnd = 0
     for rnd in range(1, max_rounds + 1):
         ledger.adjust(options)
-        tests = w_tests(ledger, sigma0, min_redundancy)
+        try:
+            tests = w_tests(ledger, sigma0, min_redundancy)
+        except QualityControlError:
+            # no precision at this state (gross errors distort it beyond repair): remove the image
+            # observation with the largest normalised residual, without a w-test, and go on
+            res = ledger.result
+            z = np.max(np.abs(res.image_residuals()) / res.problem.obs.sigma, axis=1)
+            z[~ledger.active] = -1.0
+            i = int(np.argmax(z))
+            ledger.remove_image(i, "baarda", rnd, value=float(z[i]))
+            ledger.decisions[-1].group += " (no precision: largest residual)"
+            continue
         wi = np.abs(tests["image"])
         wi_obs = np.nanmax(np.where(np.isnan(wi), -1.0, wi), axis=1)
         cands: list[tuple[float, str, int, int]] = []      # (|w|, kind, a, b)
