@@ -67,6 +67,9 @@ __all__ = [
     "MissingSpiceTablesError",
     "IsisNetworkFormatError",
     "UnknownImageError",
+    "QualityControlError",
+    "QualityControlInputError",
+    "VarianceComponentError",
 ]
 
 
@@ -335,3 +338,19 @@ class IsisNetworkFormatError(NetworkFormatError):
 
 class UnknownImageError(IsisNetworkFormatError):
     """A control measure refers to an image (ISIS serial number) that is not in the image list."""
+
+# --- Quality control of the adjustment (issue 11: lunarmap.adjust.qc) -------------------------------
+
+class QualityControlError(AdjustmentError):
+    """Quality control of an adjustment (pre-screening, robust reweighting, data snooping, variance
+    components, offset/drift detection) cannot go on; the message names the step and the cause."""
+
+
+class QualityControlInputError(QualityControlError, AdjustmentInputError):
+    """A quality-control setting is unusable: a limit <= 0, an unknown step or weight function, groups
+    that do not fit the block."""
+
+
+class VarianceComponentError(QualityControlError, AdjustmentInputError):
+    """A group of observations has too little redundancy for its variance component to be estimated
+    (the message names the group and its redundancy)."""

@@ -42,8 +42,16 @@ def test_covariances_and_redundancy_numbers_against_dense_fd():
     H = J @ np.linalg.solve(J.T @ J, J.T)
     red = (1 - np.diag(H))[: 2 * pb.obs.n].reshape(-1, 2)
     np.testing.assert_allclose(pr.redundancy_numbers, red, atol=1e-3)
+    # issue 11: redundancy numbers of the control and navigation observations too (rows of the FD Jacobian)
+    k = 2 * pb.obs.n
+    nc3 = 3 * int((~pb.priors.fixed).sum())
+    np.testing.assert_allclose(pr.control_redundancy.ravel(), 1 - np.diag(H)[k:k + nc3], atol=1e-3)
+    np.testing.assert_allclose(pr.term_redundancy[0], 1 - np.diag(H)[k + nc3:], atol=1e-3)
+    assert len(pr.term_redundancy) == 1 and pr.term_redundancy[0].size == nav.n_obs_scalar
     # sum of all redundancy numbers = redundancy (trace identity)
     assert np.sum(1 - np.diag(H)) == pytest.approx(res.redundancy, abs=1e-3)
+    total = pr.redundancy_numbers.sum() + pr.control_redundancy.sum() + pr.term_redundancy[0].sum()
+    assert total == pytest.approx(res.redundancy, abs=1e-3)
     ds = res.points_dataset(with_precision=True)
     assert ds["sigma"].shape == (pb.n_points, 3) and ds.attrs["sigma0"] == res.sigma0
 
@@ -79,8 +87,10 @@ def test_selected_inverse_blocks_match_dense_inverse():
     c = 6 * st.block_col[:, None, None] + ar[None, None, :]
     want = Qd[r, c] * d[r] * d[c]
     tol = dict(rtol=0, atol=1e-5 * np.abs(np.diag(Qd) * d * d).max())
-    for kw in (dict(keep_dense=True), dict(keep_dense=False, use_band=True), dict(keep_dense=False, use_band=False),
-               dict(keep_dense=False, use_band=False, chunk_columns=12)):
+    for kw in (dict(keep_dense=True), dict(keep_dense=False), dict(keep_dense=False, method="supernodal"),
+               dict(keep_dense=False, method="chunks", use_band=True),
+               dict(keep_dense=False, method="chunks", use_band=False),
+               dict(keep_dense=False, method="chunks", use_band=False, chunk_columns=12)):
         Qblk, _, Q = reduced_inverse_blocks(sp.csr_matrix(S), res.free_red, st.block_row, st.block_col, 6, st.n_cam,
                                             **kw)
         np.testing.assert_allclose(Qblk * d[r] * d[c], want, err_msg=str(kw), **tol)
@@ -97,12 +107,17 @@ def test_sparse_precision_matches_dense_method_with_navigation_terms():
         pytest.skip("numba not installed")
     pb = frame_case(orbits=3, per_orbit=6, points=500, seed=9).problem
     res = solve(pb, SolverOptions(ftol=1e-10))
-    a = posterior_precision(res, method="sparse", redundancy=True)
+    a = posterior_precision(res, method="sparse", redundancy=True, inverse_method="supernodal")
     b = posterior_precision(res, method="dense", redundancy=True)
-    for name in ("cam_cov", "pt_cov", "extra_cov"):
-        x, y = getattr(a, name), getattr(b, name)
-        np.testing.assert_allclose(x, y, rtol=1e-6, atol=1e-9 * np.abs(y).max(), err_msg=name)
-    np.testing.assert_allclose(a.redundancy_numbers, b.redundancy_numbers, atol=1e-7)
+    c = posterior_precision(res, method="sparse", redundancy=True, inverse_method="chunks")
+    assert a.method == "sparse-supernodal" and c.method == "sparse-chunks"
+    for other in (a, c):
+        for name in ("cam_cov", "pt_cov", "extra_cov", "cam_extra_cov"):
+            x, y = getattr(other, name), getattr(b, name)
+            np.testing.assert_allclose(x, y, rtol=1e-6, atol=1e-9 * np.abs(y).max(), err_msg=name)
+        np.testing.assert_allclose(other.redundancy_numbers, b.redundancy_numbers, atol=1e-7)
+        np.testing.assert_allclose(other.control_redundancy, b.control_redundancy, atol=1e-7)
+        np.testing.assert_allclose(other.term_redundancy[0], b.term_redundancy[0], atol=1e-7)
     assert np.sum(a.redundancy_numbers) + 0 == pytest.approx(
         np.sum(b.redundancy_numbers), abs=1e-5)
 
@@ -118,7 +133,8 @@ def test_singular_reduced_system_raises_datum_defect():
     A[:, 11] = A[:, 3] - 2.0 * A[:, 7]          # rank 11: an undefined direction
     S = sp.csr_matrix(A.T @ A)
     br, bc = np.array([0, 0, 1]), np.array([0, 1, 1])
-    for kw in (dict(keep_dense=True), dict(keep_dense=False, use_band=True), dict(keep_dense=False, use_band=False)):
+    for kw in (dict(keep_dense=True), dict(keep_dense=False), dict(keep_dense=False, method="chunks", use_band=True),
+               dict(keep_dense=False, method="chunks", use_band=False)):
         with pytest.raises(DatumDefectError):
             reduced_inverse_blocks(S, np.ones(12, bool), br, bc, 6, 2, **kw)
 

@@ -65,6 +65,22 @@ def test_nac_like_matching_error_at_10_deg_is_below_a_tenth_pixel(pair10, nac_sc
     assert rms / 3 < sig < 3 * rms
 
 
+def _z_rms(m, dl, ds) -> np.ndarray:
+    ok = m.ok
+    return np.sqrt([np.mean((dl / m.sigma_line[ok]) ** 2), np.mean((ds / m.sigma_sample[ok]) ** 2)])
+
+
+def test_lsm_sigma_is_calibrated_on_a_simulated_pair(pair10, nac_scene) -> None:
+    """Issue 11: error / sigma has unit RMS in both coordinates (the relief terms take the window's
+    relief parallax along the epipolar line; the covariance models the smoothed, correlated noise)."""
+    c1, c2, _, _, m = pair10
+    ok = m.ok
+    dl, ds = matching_errors(c1, c2, m.line1[ok], m.sample1[ok], m.line2[ok], m.sample2[ok], nac_scene[0])
+    z = _z_rms(m, dl, ds)
+    print(f"NAC-like 10 deg: {ok.sum()} matches, RMS error/sigma line {z[0]:.2f} sample {z[1]:.2f}")
+    assert np.all((z > 0.8) & (z < 1.2)), z
+
+
 def test_frame_camera_matching_error_at_10_deg_is_below_a_tenth_pixel() -> None:
     dtm, alb = synthetic_scene(LON0, LAT0, 6000.0, 12.8, seed=5)
     c1, c2 = stereo_pair("frame", 10.0)
@@ -79,6 +95,9 @@ def test_frame_camera_matching_error_at_10_deg_is_below_a_tenth_pixel() -> None:
     assert ok.sum() >= 100
     dl, ds = matching_errors(c1, c2, m.line1[ok], m.sample1[ok], m.line2[ok], m.sample2[ok], DtmSampler(dtm))
     assert _rms(dl, ds) <= 0.1, _rms(dl, ds)
+    z = _z_rms(m, dl, ds)   # issue 11: the sigma is calibrated
+    print(f"frame 10 deg: {ok.sum()} matches, RMS error/sigma line {z[0]:.2f} sample {z[1]:.2f}")
+    assert np.all((z > 0.8) & (z < 1.2)), z
 
 
 def test_ransac_on_real_matches_with_20_percent_mismatches(pair10) -> None:

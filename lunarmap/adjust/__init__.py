@@ -9,7 +9,10 @@ control points and full posterior precision.
 * :func:`solve` -- the Levenberg-Marquardt solver on a :class:`BundleProblem` (Schur complement,
   sparse Cholesky); :class:`AdjustmentResult` and its :meth:`~AdjustmentResult.precision`;
 * :class:`FrameModel` and the BAL reader/writer -- the BAL collinearity model, kept for benchmarks
-  against other solvers.
+  against other solvers;
+* :func:`quality_control` (:mod:`.qc`) -- Sequent pre-screening, robust reweighting, Baarda data
+  snooping of every observation group, variance components per group, per-orbit offset/drift
+  detection, with a report of every decision (issue 11).
 """
 
 from ..errors import (
@@ -34,6 +37,9 @@ from .problem import BundleProblem, ImageModel, ImageObservations, PointPriors, 
 from .result import AdjustmentResult
 from .sensors import SensorImageModel
 from .solver import AdjustmentState, SolverOptions, solve
+from .variance import ObservationGroups, VarianceComponents, estimate_variance_components, observation_groups
+from .weights import ScaledTerm, Weights, reweighted_problem
+from .qc import QCOptions, QCReport, QCResult, quality_control
 
 __all__ = [
     "Block", "BlockResult", "NavigationSpec", "build_block", "solve_block", "navigation_observations",
@@ -48,4 +54,6 @@ __all__ = [
     "lonlat_priors", "lonlat_covariance_to_xyz",
     "ControlNetwork", "read_network", "write_network", "network_from_tiepoints", "merge_networks",
     "NavigationObservations",
+    "ObservationGroups", "VarianceComponents", "estimate_variance_components", "observation_groups",
+    "ScaledTerm", "Weights", "reweighted_problem", "QCOptions", "QCReport", "QCResult", "quality_control",
 ]

@@ -50,8 +50,9 @@ class NavigationObservations:
         Orbit (or camera group) of every image.
     s : (n_img,) float
         Along-orbit coordinate of every image (seconds or metres) for the drift.
-    offset, drift : {"fixed", "free", "observed"} or sequence of p of them
-        One mode for all parameters, or one per parameter.
+    offset, drift : {"fixed", "free", "observed"}, sequence of p of them, or (n_orbits, p) of them
+        One mode for all parameters, one per parameter, or one per orbit and parameter (the
+        two-stage offset/drift detection of :mod:`lunarmap.adjust.qc.offsets` frees single ones).
     offset_sigma, drift_sigma : (p,) float
         Sigma of the pseudo-observations when ``"observed"`` (units per parameter; drift per unit of ``s``).
     name : str
@@ -63,8 +64,6 @@ class NavigationObservations:
         obs = np.asarray(observed, dtype=float)
         n, p = obs.shape
         sig = np.array(np.broadcast_to(np.asarray(sigma, dtype=float), (n, p)))
-        offset_modes = self._modes("offset", offset, p)
-        drift_modes = self._modes("drift", drift, p)
         if np.any(~(sig > 0)):
             raise AdjustmentInputError("navigation sigma must be > 0 (use inf for 'not observed')")
         used = np.isfinite(sig)
@@ -74,6 +73,9 @@ class NavigationObservations:
         orbit = np.asarray(orbit, dtype=np.int64)
         if orbit.shape != (n,) or orbit.min() < 0:
             raise AdjustmentInputError("orbit must be (n_img,) non-negative integers")
+        n_orbits = int(orbit.max()) + 1
+        offset_modes = self._modes("offset", offset, p, n_orbits)
+        drift_modes = self._modes("drift", drift, p, n_orbits)
         self.s = np.zeros(n) if s is None else np.asarray(s, dtype=float)
         if self.s.shape != (n,) or not np.all(np.isfinite(self.s)):
             raise AdjustmentInputError("s must be (n_img,) finite values")
@@ -84,26 +86,31 @@ class NavigationObservations:
         self.n_orbits = int(orbit.max()) + 1
         self.p = p
         self.offset_modes, self.drift_modes = offset_modes, drift_modes
-        self.offset = offset if isinstance(offset, str) else tuple(offset_modes)
-        self.drift = drift if isinstance(drift, str) else tuple(drift_modes)
+        self.offset = offset if isinstance(offset, str) else offset_modes.copy()
+        self.drift = drift if isinstance(drift, str) else drift_modes.copy()
         self.offset_sigma = self._pseudo_sigma("offset", offset_sigma, offset_modes, p)
         self.drift_sigma = self._pseudo_sigma("drift", drift_sigma, drift_modes, p)
         self.name = name
         self.n_extra = 2 * self.n_orbits * p   # [offsets (n_orb, p) | drifts (n_orb, p)]
-        self.n_obs_scalar = int(used.sum()) + self.n_orbits * int(np.sum(offset_modes == "observed")) + \
-            self.n_orbits * int(np.sum(drift_modes == "observed"))
+        self.n_obs_scalar = int(used.sum()) + int(np.sum(offset_modes == "observed")) + \
+            int(np.sum(drift_modes == "observed"))
+        self._sigma = np.where(used, sig, np.inf)
         self._build()
 
     @staticmethod
-    def _modes(what: str, mode, p: int) -> NDArray:
+    def _modes(what: str, mode, p: int, n_orbits: int) -> NDArray:
+        """Modes as an ``(n_orbits, p)`` array."""
         modes = np.array([mode] * p if isinstance(mode, str) else list(mode), dtype=object)
-        if modes.shape != (p,) or any(m not in _MODES for m in modes):
-            raise AdjustmentInputError(f"{what} must be one of {_MODES} or a sequence of {p} of them, got {mode!r}")
+        if modes.shape == (p,):
+            modes = np.tile(modes, (n_orbits, 1))
+        if modes.shape != (n_orbits, p) or any(m not in _MODES for m in modes.ravel()):
+            raise AdjustmentInputError(f"{what} must be one of {_MODES}, a sequence of {p} of them or ({n_orbits}, "
+                                       f"{p}) of them, got {mode!r}")
         return modes
 
     @staticmethod
     def _pseudo_sigma(what: str, sigma, modes: NDArray, p: int):
-        observed = modes == "observed"
+        observed = (modes == "observed").any(axis=0)
         if not observed.any():
             return None if sigma is None else np.broadcast_to(np.asarray(sigma, float), (p,))
         if sigma is None:
@@ -112,6 +119,48 @@ class NavigationObservations:
         if not np.all(np.isfinite(sig[observed]) & (sig[observed] > 0)):
             raise AdjustmentInputError(f"{what}_sigma must be finite and > 0 for the 'observed' parameters")
         return sig
+
+    @property
+    def sigma(self) -> NDArray:
+        """``(n_img, p)`` a-priori sigmas (``inf`` where not observed)."""
+        return self._sigma.copy()
+
+    @property
+    def observed(self) -> NDArray:
+        """``(n_img, p)`` observed values (0 where not observed)."""
+        return self.obs.copy()
+
+    def replace(self, observed=None, sigma=None, offset=None, drift=None) -> "NavigationObservations":
+        """A copy with other observations, sigmas or offset/drift modes (``(n_orbits, p)`` allowed)."""
+        return NavigationObservations(self.obs if observed is None else observed,
+                                      self._sigma if sigma is None else sigma, self.orbit, self.s,
+                                      self.offset_modes if offset is None else offset,
+                                      self.drift_modes if drift is None else drift,
+                                      self.offset_sigma, self.drift_sigma, self.name)
+
+    def row_table(self) -> dict:
+        """What every row of :meth:`linearize` observes.
+
+        Returns
+        -------
+        dict of (n_obs_scalar,) arrays
+            ``kind`` (0 = navigation observation of an image parameter, 1 = offset, 2 = drift
+            pseudo-observation), ``image`` (-1 for pseudo-observations), ``param``, ``orbit``.
+        """
+        n, p = self.obs.shape
+        rows = self._rows
+        kind = [np.zeros(rows.size, np.int64)]
+        image = [rows // p]
+        param = [rows % p]
+        orbit = [self.orbit[rows // p]]
+        for k, modes in ((1, self.offset_modes), (2, self.drift_modes)):
+            j = np.flatnonzero((modes == "observed").ravel())
+            kind.append(np.full(j.size, k))
+            image.append(np.full(j.size, -1))
+            param.append(j % p)
+            orbit.append(j // p)
+        return {"kind": np.concatenate(kind), "image": np.concatenate(image), "param": np.concatenate(param),
+                "orbit": np.concatenate(orbit)}
 
     def _build(self):
         n, p = self.obs.shape
@@ -130,7 +179,7 @@ class NavigationObservations:
         for base, modes, sig in ((ncr, self.offset_modes, self.offset_sigma),
                                  (ncr + self.n_orbits * p, self.drift_modes, self.drift_sigma)):
             # zero-mean pseudo-observations of the observed offsets/drifts, orbit-major order
-            j = np.nonzero(np.tile(modes == "observed", self.n_orbits))[0]
+            j = np.nonzero((modes == "observed").ravel())[0]
             if j.size:
                 r_.append(nrow + np.arange(j.size))
                 c_.append(base + j)
@@ -146,8 +195,8 @@ class NavigationObservations:
     def extra_free(self) -> NDArray[np.bool_]:
         f = np.zeros(self.n_extra, dtype=bool)
         h = self.n_orbits * self.p
-        f[:h] = np.tile(self.offset_modes != "fixed", self.n_orbits)
-        f[h:] = np.tile(self.drift_modes != "fixed", self.n_orbits)
+        f[:h] = (self.offset_modes != "fixed").ravel()
+        f[h:] = (self.drift_modes != "fixed").ravel()
         return f
 
     def observed_images(self) -> NDArray[np.bool_]:

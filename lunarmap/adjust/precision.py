@@ -41,11 +41,13 @@ try:
 except ImportError:  # pragma: no cover - exercised only without numba
     numba = None
 
-__all__ = ["Precision", "posterior_precision", "ordered_track_pairs", "reduced_inverse_blocks"]
+__all__ = ["Precision", "posterior_precision", "ordered_track_pairs", "reduced_inverse_blocks", "reduced_inverse",
+           "ReducedInverse"]
 
 #: largest diagonal element of the Jacobi-scaled inverse accepted as a defined datum
 MAX_SCALED_VARIANCE = 1e13
 #: smallest/largest eigenvalue ratio of a point's normal block below which the point is undetermined
+#: (1e-10: rays within ~0.0006 degrees of parallel; its inverse block is then rounding noise)
 UNDETERMINED_POINT_RATIO = 1e-10
 #: reduced systems up to this size also keep the dense ``Q_red``
 DENSE_Q_LIMIT = 1500
@@ -69,6 +71,15 @@ class Precision:
     undetermined_points : (k,) int
         Points whose normal block is numerically singular (rays nearly parallel); their
         covariance is reported as ``inf`` and they do not constrain the images.
+    control_redundancy : (k, 3) or None
+        Redundancy numbers of the whitened coordinates of the weighted control points (in the
+        order of ``priors.idx[~priors.fixed]``; for a full covariance, of the components of
+        ``W (X - xyz)`` with ``W^T W = C^-1``).
+    term_redundancy : list of (m_t,) or None
+        Redundancy numbers of the whitened rows of every camera-level term (navigation
+        observations and their offset/drift pseudo-observations), in the term's row order.
+    cam_extra_cov : (n_img * p, n_extra) or None
+        Covariances of image parameters with extra parameters (NaN where not computed).
     """
 
     cam_cov: NDArray
@@ -79,6 +90,9 @@ class Precision:
     sigma0: float
     method: str
     undetermined_points: NDArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    control_redundancy: NDArray | None = None
+    term_redundancy: list | None = None
+    cam_extra_cov: NDArray | None = None
 
 
 def ordered_track_pairs(pt_idx: NDArray, n_pt: int, active=None):
@@ -100,10 +114,44 @@ def ordered_track_pairs(pt_idx: NDArray, n_pt: int, active=None):
     return np.concatenate(A), np.concatenate(B)
 
 
+@dataclass
+class ReducedInverse:
+    """Entries of ``Q = S^-1`` of the reduced unknowns (cofactors, unscaled; see :func:`reduced_inverse`).
+
+    Attributes
+    ----------
+    Qblk : (n_blocks, p, p)
+        Blocks of the camera pairs asked for.
+    Qextra : (n_extra, n_extra)
+        The extra parameters' block.
+    Qce : (n_cam * p, n_extra)
+        Image parameters x extra parameters; NaN where not computed (an image whose parameters
+        are not coupled to the extras in ``S``: off the Cholesky pattern of the selected inversion).
+    Q : (n_red, n_red) or None
+        The dense ``Q`` (small systems only).
+    method : str
+    """
+
+    Qblk: NDArray
+    Qextra: NDArray
+    Qce: NDArray
+    Q: NDArray | None
+    method: str
+
+
 def reduced_inverse_blocks(S: sp.csr_matrix, free_red: NDArray, block_row: NDArray, block_col: NDArray, p: int,
                            n_cam: int, backend: str = "auto", chunk_columns: int = 1536,
-                           keep_dense: bool | None = None, use_band: bool = True):
-    """Blocks of ``Q = S^-1`` on a camera-pair pattern, the extra-parameter block and (small) the dense ``Q``.
+                           keep_dense: bool | None = None, use_band: bool = True, method: str = "auto"):
+    """``(Qblk, Qextra, Q)`` of :func:`reduced_inverse` (kept for callers of the tuple form)."""
+    r = reduced_inverse(S, free_red, block_row, block_col, p, n_cam, backend, chunk_columns, keep_dense, use_band,
+                        method)
+    return r.Qblk, r.Qextra, r.Q
+
+
+def reduced_inverse(S: sp.csr_matrix, free_red: NDArray, block_row: NDArray, block_col: NDArray, p: int,
+                    n_cam: int, backend: str = "auto", chunk_columns: int = 1536,
+                    keep_dense: bool | None = None, use_band: bool = True, method: str = "auto") -> ReducedInverse:
+    """Blocks of ``Q = S^-1`` on a camera-pair pattern, the extra-parameter blocks and (small) the dense ``Q``.
 
     Parameters
     ----------
@@ -114,16 +162,18 @@ def reduced_inverse_blocks(S: sp.csr_matrix, free_red: NDArray, block_row: NDArr
     block_row, block_col : (n_blocks,) int
         Camera-pair blocks wanted (``block_row <= block_col``).
 
+    method : {"auto", "supernodal", "chunks", "dense"}
+        ``"supernodal"`` (the default for systems too large for the dense ``Q``): Takahashi's
+        selected inversion on a nested-dissection supernodal factor (:mod:`.selinv`), which costs
+        about one factorisation. ``"chunks"``: columns of ``S^-1`` solved for in chunks with the
+        sparse factor, after a band Cholesky with Takahashi's recursion of the camera blocks when
+        the reverse Cuthill-McKee band is narrow (``use_band``) -- the method before issue 11,
+        whose cost grows like ``n_cam * nnz(L)`` (kept for comparison). ``"dense"``: the whole
+        inverse (also kept as ``Q``).
+
     Returns
     -------
-    Qblk : (n_blocks, p, p)
-    Qextra : (n_red - n_cam * p, n_red - n_cam * p)
-    Q : (n_red, n_red) or None
-
-    Large systems (no dense ``Q`` kept) use a band Cholesky and Takahashi's selected inversion
-    after a reverse Cuthill-McKee ordering of the images when the band is narrow enough
-    (``use_band``); otherwise, and for the extra-parameter columns, columns of ``S^-1`` are solved
-    for in chunks with the sparse factor.
+    ReducedInverse
 
     Raises
     ------
@@ -139,16 +189,24 @@ def reduced_inverse_blocks(S: sp.csr_matrix, free_red: NDArray, block_row: NDArr
     s = 1.0 / np.sqrt(d)
     # Jacobi scaling: unit diagonal, so the datum test below is independent of units (radians vs metres)
     Ss = sp.csr_matrix(S.multiply(s[:, None]).multiply(s[None, :]))
-    solve = Factorizer(backend)(Ss)
     fi = np.nonzero(free_red)[0]
     pos = np.full(n_red, -1)
     pos[fi] = np.arange(fi.size)
     if keep_dense is None:
-        keep_dense = n_red <= DENSE_Q_LIMIT
+        keep_dense = n_red <= DENSE_Q_LIMIT and method in ("auto", "dense")
+    if method == "auto":
+        method = "dense" if keep_dense else "supernodal"
+    if method not in ("supernodal", "chunks", "dense"):
+        raise ValueError(f"unknown reduced-inverse method {method!r}")
+    n_extra = n_red - n_cam_red
+    if method == "supernodal":
+        return _supernodal_inverse(Ss, s, free_red, pos, block_row, block_col, p, n_cam)
+    keep_dense = keep_dense or method == "dense"
+    solve = Factorizer(backend)(Ss)
     Q = np.zeros((n_red, n_red)) if keep_dense else None
     Qblk = np.zeros((block_row.size, p, p))
-    n_extra = n_red - n_cam_red
     Qextra = np.zeros((n_extra, n_extra))
+    Qce = np.full((n_cam_red, n_extra), np.nan)
     cams_per_chunk = max(1, chunk_columns // p)
     ar = np.arange(p)
     chunks = [(p * b0, p * min(n_cam, b0 + cams_per_chunk)) for b0 in range(0, n_cam, cams_per_chunk)]
@@ -193,7 +251,70 @@ def reduced_inverse_blocks(S: sp.csr_matrix, free_red: NDArray, block_row: NDArr
             Qblk[sel] = Xf[rows, cc]
         else:
             Qextra[:, :] = Xf[n_cam_red:, :]
-    return Qblk, Qextra, Q
+            Qce[:, :] = Xf[:n_cam_red, :]
+    if Q is not None:
+        Qce = Q[:n_cam_red, n_cam_red:].copy()
+    return ReducedInverse(Qblk, Qextra, Qce, Q, "dense" if Q is not None else "chunks")
+
+
+def _supernodal_inverse(Ss: sp.csr_matrix, s: NDArray, free_red: NDArray, pos: NDArray, block_row: NDArray,
+                        block_col: NDArray, p: int, n_cam: int) -> ReducedInverse:
+    """:func:`reduced_inverse` by selected inversion (:mod:`.selinv`) of the Jacobi-scaled ``Ss``.
+
+    Nodes are the free parameters of each image and, ordered last, all free extra parameters.
+    """
+    from .selinv import selected_inverse, symbolic_factor
+
+    n_red = free_red.size
+    n_cam_red = n_cam * p
+    n_extra = n_red - n_cam_red
+    per_cam = free_red[:n_cam_red].reshape(n_cam, p).sum(axis=1)
+    n_ex_free = int(free_red[n_cam_red:].sum())
+    sizes = np.concatenate([per_cam[per_cam > 0], [n_ex_free] if n_ex_free else []]).astype(np.int64)
+    node_ptr = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    last = np.array([sizes.size - 1]) if n_ex_free else None
+    sym = symbolic_factor(Ss, node_ptr, last_nodes=last)
+    ar = np.arange(p)
+    # wanted: every camera-pair block, the extras' block, and images x extras where S couples them
+    shape = (block_row.size, p, p)
+    r = np.broadcast_to(p * block_row[:, None, None] + ar[None, :, None], shape)
+    c = np.broadcast_to(p * block_col[:, None, None] + ar[None, None, :], shape)
+    fr, fc = pos[r], pos[c]
+    ok = (fr >= 0) & (fc >= 0)
+    ex_free = np.arange(n_cam_red, n_red)[free_red[n_cam_red:]]
+    want_r, want_c = [fr[ok]], [fc[ok]]
+    rows_red = np.zeros(0, np.int64)
+    if ex_free.size:
+        ee_r, ee_c = np.meshgrid(pos[ex_free], pos[ex_free], indexing="ij")
+        want_r.append(ee_r.ravel())
+        want_c.append(ee_c.ravel())
+        # images with a parameter coupled to an extra parameter in S: all their free parameters are
+        # on the factor's (node-level) pattern
+        hit = np.unique(Ss[:, pos[ex_free]].nonzero()[0])
+        cams = np.unique(np.nonzero(free_red[:n_cam_red])[0][hit[hit < pos[ex_free].min()]] // p)
+        rows_red = (p * cams[:, None] + ar[None, :]).ravel()
+        rows_red = rows_red[free_red[rows_red]]
+        cr, cc = np.meshgrid(pos[rows_red], pos[ex_free], indexing="ij")
+        want_r.append(cr.ravel())
+        want_c.append(cc.ravel())
+    vals = selected_inverse(Ss, sym, np.concatenate(want_r), np.concatenate(want_c),
+                            max_scaled_variance=MAX_SCALED_VARIANCE)
+    sf = np.zeros(n_red)
+    sf[free_red] = s
+    k = int(ok.sum())
+    Qblk = np.zeros(shape)
+    Qblk[ok] = vals[:k]
+    Qblk *= sf[r] * sf[c]
+    Qextra = np.zeros((n_extra, n_extra))
+    Qce = np.full((n_cam_red, n_extra), np.nan)
+    Qce[~free_red[:n_cam_red]] = 0.0               # fixed image parameters: no cofactors
+    if ex_free.size:
+        m = ex_free.size
+        je = ex_free - n_cam_red
+        Qextra[np.ix_(je, je)] = vals[k:k + m * m].reshape(m, m) * np.outer(sf[ex_free], sf[ex_free])
+        Qce[rows_red] = 0.0                         # fixed extras stay 0
+        Qce[np.ix_(rows_red, je)] = vals[k + m * m:].reshape(rows_red.size, m) * np.outer(sf[rows_red], sf[ex_free])
+    return ReducedInverse(Qblk, Qextra, Qce, None, "supernodal")
 
 
 def _band_selected_inverse_py(Ab, b):
@@ -381,7 +502,8 @@ _point_cov_kernel = numba.njit(cache=True)(_point_cov_py) if numba is not None e
 
 
 def posterior_precision(result, method: str = "auto", redundancy: bool = False,
-                        scale_by_sigma0: bool = True, backend: str = "auto") -> Precision:
+                        scale_by_sigma0: bool = True, backend: str = "auto", inverse_method: str = "auto",
+                        undetermined_ratio: float = UNDETERMINED_POINT_RATIO) -> Precision:
     """Covariances of all adjusted parameters of ``result`` (an ``AdjustmentResult``).
 
     Parameters
@@ -391,11 +513,17 @@ def posterior_precision(result, method: str = "auto", redundancy: bool = False,
         covariances in one compiled pass (needs numba; the default when available);
         ``"dense"``: LAPACK ``potrf`` + ``potri`` of the whole reduced system (small blocks).
     redundancy : bool
-        Also compute the redundancy numbers of the image observations.
+        Also compute the redundancy numbers of every observation: image coordinates, control
+        point coordinates, navigation observations (rows of the camera-level terms).
     scale_by_sigma0 : bool
         Scale cofactors by the a-posteriori ``sigma0**2`` (else by 1, a-priori).
     backend : str
         Factorisation backend of the sparse method (:class:`lunarmap.adjust.factor.Factorizer`).
+    inverse_method : str
+        How the sparse method gets the blocks of ``S^-1`` (:func:`reduced_inverse`).
+    undetermined_ratio : float
+        Points whose normal block's smallest/largest eigenvalue ratio is below this are treated as
+        undetermined (infinite covariance; their null direction does not weigh on the images).
 
     Raises
     ------
@@ -418,10 +546,11 @@ def posterior_precision(result, method: str = "auto", redundancy: bool = False,
     terms = Terms(pb)
     fixed_pt = pb.point_fixed()
     lin = linearize(pb, result.state, st, terms, fixed_pt)
-    undetermined = _regularize_undetermined_points(lin.V, ~fixed_pt)
+    undetermined = _regularize_undetermined_points(lin.V, ~fixed_pt, undetermined_ratio)
     S, _, Vinv, _ = reduced_system(lin, st, terms, 0.0, result.free_red)
-    Qblk, Qextra, Q = reduced_inverse_blocks(S, result.free_red, st.block_row, st.block_col, p, st.n_cam,
-                                             backend=backend)
+    inv = reduced_inverse(S, result.free_red, st.block_row, st.block_col, p, st.n_cam, backend=backend,
+                          method=inverse_method)
+    Qblk, Qextra, Q = inv.Qblk, inv.Qextra, inv.Q
     kern = _point_cov_kernel
     Cpp, red = kern(Qblk, Vinv, np.ascontiguousarray(lin.Ac), np.ascontiguousarray(lin.Ap), st.cam_idx,
                     st.pt_order, st.pt_start, st.pair_start, st.pair_blk, st.active, st.diag_block, st.max_track,
@@ -429,11 +558,87 @@ def posterior_precision(result, method: str = "auto", redundancy: bool = False,
     s2 = result.sigma0 ** 2 if scale_by_sigma0 else 1.0
     Cpp[fixed_pt] = 0.0
     Cpp[undetermined] = np.inf
+    ctl_red = term_red = None
+    if redundancy:
+        ctl_red = _control_redundancy(pb, result.state.points, Cpp)
+        lookup = _SparseCofactors(Qblk, st, Qextra, inv.Qce, p, terms.n_cam_red)
+        term_red = _term_redundancy(pb, lin, terms, lookup)
     return Precision(Qblk[st.diag_block] * s2, Cpp * s2, Qextra * s2, Q, red if redundancy else None,
-                     result.sigma0, "sparse-selected-inverse", undetermined)
+                     result.sigma0, f"sparse-{inv.method}", undetermined, ctl_red, term_red, inv.Qce * s2)
 
 
-def _regularize_undetermined_points(V: NDArray, active: NDArray) -> NDArray:
+def _control_redundancy(pb, points: NDArray, Qpp: NDArray) -> NDArray | None:
+    """``1 - diag(W Q_pp W^T)`` of every weighted control point (``W`` its whitening, ``Q_pp`` its cofactors)."""
+    from .normal import prior_terms
+
+    pt = prior_terms(pb, points)
+    if pt is None:
+        return None
+    idx, _, W = pt
+    return 1.0 - np.einsum("kij,kjl,kil->ki", W, Qpp[idx], W)
+
+
+class _SparseCofactors:
+    """Cofactors ``Q[a, b]`` of reduced unknowns from the selected blocks (image pairs, image x extra, extras)."""
+
+    def __init__(self, Qblk, st, Qextra, Qce, p, n_cam_red):
+        self.Qblk, self.Qextra, self.Qce, self.p, self.ncr = Qblk, Qextra, Qce, p, n_cam_red
+        self.n_cam = st.n_cam
+        self.key = st.block_row.astype(np.int64) * st.n_cam + st.block_col
+        self.order = np.argsort(self.key)
+        self.sorted = self.key[self.order]
+
+    def __call__(self, a: NDArray, b: NDArray) -> NDArray:
+        p, ncr = self.p, self.ncr
+        out = np.full(a.size, np.nan)
+        cc = (a < ncr) & (b < ncr)
+        if cc.any():
+            ca, cb = a[cc] // p, b[cc] // p
+            lo, hi = np.minimum(ca, cb), np.maximum(ca, cb)
+            k = np.searchsorted(self.sorted, lo * self.n_cam + hi)
+            k = np.minimum(k, self.sorted.size - 1)
+            found = self.sorted[k] == lo * self.n_cam + hi
+            blk = self.order[k]
+            ia, ib = a[cc] % p, b[cc] % p
+            swap = ca > cb           # blocks are stored (row <= col)
+            r = np.where(swap, ib, ia)
+            c = np.where(swap, ia, ib)
+            out[np.flatnonzero(cc)] = np.where(found, self.Qblk[blk, r, c], np.nan)
+        ce = (a < ncr) != (b < ncr)
+        if ce.any():
+            cam = np.where(a[ce] < ncr, a[ce], b[ce])
+            ex = np.where(a[ce] < ncr, b[ce], a[ce]) - ncr
+            out[ce] = self.Qce[cam, ex]
+        ee = (a >= ncr) & (b >= ncr)
+        if ee.any():
+            out[ee] = self.Qextra[a[ee] - ncr, b[ee] - ncr]
+        return out
+
+
+def _term_redundancy(pb, lin, terms, lookup) -> list | None:
+    """``1 - a_i^T Q a_i`` of every whitened row ``a_i`` of the camera-level terms (each row sees few unknowns)."""
+    if lin.Jx is None:
+        return None
+    J = sp.csr_matrix(lin.Jx)
+    J.sum_duplicates()
+    cnt = np.diff(J.indptr)
+    quad = np.zeros(J.shape[0])
+    top = int(cnt.max(initial=0))
+    for u in range(top):                 # entries u and v of every row that has them
+        for v in range(top):
+            rows = np.flatnonzero(cnt > max(u, v))
+            iu, iv = J.indptr[rows] + u, J.indptr[rows] + v
+            q = lookup(J.indices[iu].astype(np.int64), J.indices[iv].astype(np.int64))
+            quad[rows] += J.data[iu] * J.data[iv] * q
+    red = 1.0 - quad
+    out, s0 = [], 0
+    for t in pb.terms:
+        out.append(red[s0:s0 + t.n_obs_scalar])
+        s0 += t.n_obs_scalar
+    return out
+
+
+def _regularize_undetermined_points(V: NDArray, active: NDArray, ratio: float = UNDETERMINED_POINT_RATIO) -> NDArray:
     """Indices of points whose normal block is numerically singular; their ``V`` is made regular in place.
 
     A point whose rays have become (nearly) parallel, e.g. one that drifted far along its rays
@@ -447,11 +652,11 @@ def _regularize_undetermined_points(V: NDArray, active: NDArray) -> NDArray:
     if idx.size == 0:
         return idx
     ev = np.linalg.eigvalsh(V[idx])
-    bad = idx[~(ev[:, 0] > UNDETERMINED_POINT_RATIO * ev[:, 2])]
+    bad = idx[~(ev[:, 0] > ratio * ev[:, 2])]
     if bad.size:
         lam, E = np.linalg.eigh(V[bad])
         top = np.maximum(lam[:, 2:3], 1e-300)
-        lam = np.where(lam > UNDETERMINED_POINT_RATIO * top, lam, top)
+        lam = np.where(lam > ratio * top, lam, top)
         V[bad] = np.einsum("nij,nj,nkj->nik", E, lam, E)
     return bad
 
@@ -520,4 +725,9 @@ def _dense_precision(result, redundancy: bool, scale_by_sigma0: bool) -> Precisi
                + 2.0 * np.einsum("nki,nij,nkj->nk", Ac, Qcp, Ap)
                + np.einsum("nki,nij,nkj->nk", Ap, pt_q[o.pt_idx], Ap))
         red = 1.0 - var  # A is whitened, so (A Q A^T P)_ii = var
-    return Precision(cam_cov, pt_cov, extra_cov, Q, red, result.sigma0, "dense-lapack")
+    ctl_red = term_red = None
+    if redundancy:
+        ctl_red = _control_redundancy(pb, result.state.points, pt_q)
+        term_red = _term_redundancy(pb, lin, terms, lambda a, b: Q[a, b])
+    return Precision(cam_cov, pt_cov, extra_cov, Q, red, result.sigma0, "dense-lapack", np.zeros(0, np.int64),
+                     ctl_red, term_red, Q[:n_cam_red, n_cam_red:] * s2)

@@ -1,17 +1,18 @@
-"""Variance factors of groups of image observations, estimated from the adjustment (Helmert / Förstner).
+"""Variance components of groups of observations, estimated from the adjustment (Helmert / Förstner).
 
-For a group ``k`` of image observations with whitened residuals ``v_i / sigma_i`` and redundancy
-numbers ``r_i`` (:attr:`~lunarmap.adjust.precision.Precision.redundancy_numbers`), the estimate of
-the group's variance factor is::
+For a group ``k`` of observations with whitened residuals ``v_i / sigma_i`` and redundancy numbers
+``r_i`` (:class:`~lunarmap.adjust.precision.Precision`), the estimate of the group's variance
+factor is::
 
     s_k^2 = sum_{i in k} (v_i / sigma_i)^2 / sum_{i in k} r_i
 
-(the DLR paper, ``seeds/004``, variance component estimation; ``r_k`` is the group's share of the
-redundancy). Scaling the group's sigmas by ``s_k`` and adjusting again, until every factor is 1,
-gives weights that match the data. This is what the matcher's tie points need: least-squares
-matching reports its sigma from the fit of one window, which underestimates the real scatter of
-matches between different images (resampling, relief, illumination), while check and control
-measurements, made with a known sigma, keep theirs.
+(the DLR paper, ``seeds/004``, section 4.2: variance estimation after Rao; ``r_k`` is the group's
+share of the redundancy, and ``sigma(s_k) ~ s_k / sqrt(2 r_k)``). Scaling the group's sigmas by
+``s_k`` and adjusting again, until every factor is 1, gives weights that match the data, whatever
+the starting sigmas. The groups (:func:`observation_groups`) are the paper's: image coordinates
+per camera, navigation positions and attitudes per orbit, control points. This is also what the
+matcher's tie points need: least-squares matching reports its sigma from the fit of one window,
+while check and control measurements, made with a known sigma, keep theirs.
 """
 
 from __future__ import annotations
@@ -22,12 +23,18 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import AdjustmentInputError
+from ..errors import AdjustmentInputError, VarianceComponentError
+from .normal import prior_terms
 from .problem import BundleProblem, ImageObservations
 from .result import AdjustmentResult
 from .solver import SolverOptions, solve
+from .weights import Weights, reweighted_problem
 
-__all__ = ["VarianceEstimate", "image_variance_factors", "estimate_image_variances"]
+#: a group's redundancy below this during the iteration means its variance is heading to 0 (not estimable)
+BOUNDARY_REDUNDANCY = 0.05
+
+__all__ = ["VarianceEstimate", "image_variance_factors", "estimate_image_variances", "ObservationGroups",
+           "observation_groups", "group_variance_factors", "VarianceComponents", "estimate_variance_components"]
 
 
 @dataclass
@@ -129,3 +136,334 @@ def estimate_image_variances(problem: BundleProblem, groups: NDArray[np.int64], 
     history.append(factors)
     return VarianceEstimate(result, scale, history, r)
 
+
+
+@dataclass
+class ObservationGroups:
+    """Groups of the observations of a problem for variance components (``-1``: in no group).
+
+    Attributes
+    ----------
+    names : list of str
+    image : (n_obs,) int
+        Group of every image observation (both coordinates).
+    control : (k,) int
+        Group of every control point of ``problem.priors`` (all three coordinates).
+    terms : list of (m_t,) int
+        Group of every row of every camera-level term.
+    """
+
+    names: list
+    image: NDArray[np.int64]
+    control: NDArray[np.int64]
+    terms: list
+
+    @property
+    def n(self) -> int:
+        return len(self.names)
+
+
+def _kind_of(name: str) -> str:
+    return "attitude" if name.startswith("w") else "position" if name.startswith("c") else name
+
+
+def observation_groups(problem: BundleProblem, image_group: NDArray | None = None,
+                       image_group_names: list | None = None, control: bool = True,
+                       navigation: bool = True) -> ObservationGroups:
+    """The DLR paper's groups: image coordinates per camera, navigation positions / attitudes per orbit,
+    control points.
+
+    Parameters
+    ----------
+    problem : BundleProblem
+    image_group : (n_img,) int, optional
+        Camera (or any group) of every image; default one group of all image observations.
+    image_group_names : list of str, optional
+        Names of the image groups (default ``"image <g>"``).
+    control : bool
+        One group of all weighted control points.
+    navigation : bool
+        Groups of navigation observations (terms with a ``row_table``, e.g.
+        :class:`~lunarmap.adjust.navigation.NavigationObservations`): per orbit, one of positions
+        (parameters ``c*``) and one of attitudes (``w*``); their offset/drift pseudo-observations are
+        in no group.
+    """
+    names: list[str] = []
+    o = problem.obs
+    if image_group is None:
+        img = np.zeros(o.n, np.int64)
+        names.append("image")
+    else:
+        lab = np.asarray(image_group)
+        if lab.shape != (problem.n_images,):
+            raise AdjustmentInputError(f"image_group needs one group per image ({problem.n_images}), got {lab.shape}")
+        uniq, inv = np.unique(lab, return_inverse=True)
+        img = inv[o.cam_idx].astype(np.int64)
+        if image_group_names is not None and len(image_group_names) != uniq.size:
+            raise AdjustmentInputError(f"{len(image_group_names)} names for {uniq.size} image groups")
+        names += list(image_group_names) if image_group_names is not None else [f"image {u}" for u in uniq]
+    k = 0 if problem.priors is None else problem.priors.idx.size
+    ctl = -np.ones(k, np.int64)
+    if control and k:
+        weighted = ~problem.priors.fixed
+        if weighted.any():
+            ctl[weighted] = len(names)
+            names.append("control")
+    terms = []
+    param_names = list(getattr(problem.model, "param_names", []))
+    for t in problem.terms:
+        g = -np.ones(t.n_obs_scalar, np.int64)
+        table = getattr(t, "row_table", None)
+        if navigation and table is not None:
+            rt = table()
+            obs_rows = rt["kind"] == 0
+            kinds = np.array([_kind_of(param_names[j]) if j < len(param_names) else f"p{j}" for j in rt["param"]])
+            label = getattr(t, "name", "navigation")
+            for orb in np.unique(rt["orbit"][obs_rows]):
+                for kd in sorted(set(kinds[obs_rows & (rt["orbit"] == orb)])):
+                    sel = obs_rows & (rt["orbit"] == orb) & (kinds == kd)
+                    g[sel] = len(names)
+                    names.append(f"{label} {kd} orbit {int(orb)}")
+        terms.append(g)
+    return ObservationGroups(names, img, ctl, terms)
+
+
+def group_variance_factors(result: AdjustmentResult, groups: ObservationGroups
+                           ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+    """Variance factors ``s_k^2``, redundancies ``r_k``, weighted square sums ``v'Pv_k`` and observation counts.
+
+    Removed image observations (weight 0) do not count. The groups refer to the base problem; a
+    problem with extra fixed priors appended (dropped points) is handled.
+    """
+    from .normal import image_residuals
+
+    pb = result.problem
+    pr = result.precision()
+    k = groups.n
+    vpv, red, cnt = np.zeros(k), np.zeros(k), np.zeros(k, np.int64)
+    st = result.state
+    w = st.obs_weight
+    active = w > 0
+    z = image_residuals(pb, st)
+    g = groups.image
+    use = active & (g >= 0)
+    np.add.at(vpv, g[use], np.sum(z[use] ** 2, axis=1))
+    np.add.at(red, g[use], np.sum(pr.redundancy_numbers[use], axis=1))
+    np.add.at(cnt, g[use], 2)
+    pt = prior_terms(pb, result.points)
+    if pt is not None and pr.control_redundancy is not None and groups.control.size:
+        weighted = ~pb.priors.fixed
+        n_base = groups.control.size
+        gc = groups.control[weighted[:n_base]]          # weighted rows of the base priors come first
+        rows = np.arange(gc.size)
+        use = gc >= 0
+        np.add.at(vpv, gc[use], np.sum(pt[1][rows[use]] ** 2, axis=1))
+        np.add.at(red, gc[use], np.sum(pr.control_redundancy[rows[use]], axis=1))
+        np.add.at(cnt, gc[use], 3)
+    for i, (t, gt) in enumerate(zip(pb.terms, groups.terms)):
+        rx, _ = t.linearize(result.cam_params, result._term_extra(i))
+        use = gt >= 0
+        np.add.at(vpv, gt[use], rx[use] ** 2)
+        np.add.at(red, gt[use], pr.term_redundancy[i][use])
+        np.add.at(cnt, gt[use], 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = vpv / red
+    return f, red, vpv, cnt
+
+
+@dataclass
+class VarianceComponents:
+    """Outcome of :func:`estimate_variance_components`.
+
+    Attributes
+    ----------
+    names : list of str
+    scale : (k,)
+        Estimated sigma of each group divided by its a-priori sigma (dimensionless).
+    scale_sigma : (k,)
+        Standard deviation of ``scale``, ``scale / sqrt(2 r_k)``.
+    redundancy : (k,)
+        Each group's share of the redundancy in the last adjustment.
+    observations : (k,)
+        Scalar observations of each group.
+    estimated : (k,) bool
+        Groups whose sigma was estimated (others kept their a-priori sigma).
+    history : list of (k,)
+        Variance factors of every round (1 when converged).
+    weights : Weights
+        The sigma factors of the last adjustment (apply with :func:`~lunarmap.adjust.weights.reweighted_problem`).
+    result : AdjustmentResult
+        The last adjustment.
+    converged : bool
+    """
+
+    names: list
+    scale: NDArray[np.float64]
+    scale_sigma: NDArray[np.float64]
+    redundancy: NDArray[np.float64]
+    observations: NDArray[np.int64]
+    estimated: NDArray[np.bool_]
+    history: list
+    weights: Weights
+    result: AdjustmentResult
+    converged: bool
+
+
+def _apply_group_scale(w: Weights, groups: ObservationGroups, step: NDArray) -> None:
+    g = groups.image
+    w.image_sigma[g >= 0] *= step[g[g >= 0]]
+    n_base = groups.control.size
+    gc = groups.control
+    w.control_sigma[:n_base][gc >= 0] *= step[gc[gc >= 0]]
+    for f, gt in zip(w.term_sigma, groups.terms):
+        f[gt >= 0] *= step[gt[gt >= 0]]
+
+
+def estimate_variance_components(problem: BundleProblem, groups: ObservationGroups,
+                                 options: SolverOptions | None = None, weights: Weights | None = None,
+                                 estimate: NDArray | None = None, rounds: int = 60, tol: float = 1e-3,
+                                 min_redundancy: float = 1.0, on_weak: str = "raise",
+                                 start: AdjustmentResult | None = None, accelerate: bool = True,
+                                 terms: list | None = None) -> VarianceComponents:
+    """Adjust, estimate every group's variance factor, rescale the groups' sigmas, repeat until all are 1.
+
+    Parameters
+    ----------
+    problem : BundleProblem
+        The base problem (its sigmas are the starting values).
+    groups : ObservationGroups
+    options : SolverOptions, optional
+    weights : Weights, optional
+        Weights to start from (e.g. after blunder removal); their sigma factors are updated.
+    estimate : (k,) bool, optional
+        Groups to estimate (default all); the others keep their sigma but count in the adjustment.
+    rounds : int
+        Maximum number of adjustments.
+    tol : float
+        Stop when every estimated factor ``s_k^2`` is within ``1 +- tol``.
+    min_redundancy : float
+        A group with less redundancy cannot be estimated.
+    on_weak : {"raise", "keep", "freeze"}
+        What to do with such a group -- or with one whose redundancy collapses while its sigma keeps
+        shrinking (the boundary of the estimate: the data cannot tell it from another group, e.g.
+        a narrow camera's navigation positions from its attitudes): raise
+        :class:`~lunarmap.errors.VarianceComponentError`, keep its a-priori sigma, or freeze it
+        where the iteration took it (both with ``estimated`` False).
+    start : AdjustmentResult, optional
+        Start values of the first adjustment.
+    accelerate : bool
+        Anderson acceleration of the iteration (else each round multiplies a group's sigma by ``s_k``).
+    terms : list, optional
+        Camera-level terms replacing the problem's (same rows as ``groups.terms``).
+
+    Raises
+    ------
+    VarianceComponentError
+        A group with redundancy below ``min_redundancy`` (``on_weak="raise"``); names the group.
+    """
+    from ..errors import QualityControlInputError
+
+    if on_weak not in ("raise", "keep", "freeze"):
+        raise QualityControlInputError(f"on_weak must be 'raise', 'keep' or 'freeze', got {on_weak!r}")
+    if not (tol > 0 and min_redundancy > 0):
+        raise QualityControlInputError(f"tol and min_redundancy must be > 0, got {tol}, {min_redundancy}")
+    k = groups.n
+    est = np.ones(k, bool) if estimate is None else np.asarray(estimate, bool).copy()
+    if est.shape != (k,):
+        raise QualityControlInputError(f"estimate needs {k} values (one per group), got {est.shape}")
+    w = Weights.neutral(problem) if weights is None else weights.copy()
+    # the datum does not depend on the weights; extreme starting weights (x100 / x0.01 of the truth)
+    # would trip the eigenvalue test of the first adjustment (the posterior precision still
+    # refuses a singular system)
+    opts = dataclasses.replace(options or SolverOptions(), check_datum=False)
+    total = np.ones(k)
+    history = []
+    cam, pts = (None, None) if start is None else (start.cam_params, start.points)
+    result = solve(reweighted_problem(problem, w, cam, pts, terms), opts)
+    f, r, _, n = group_variance_factors(result, groups)
+    few = est & (n <= min_redundancy)          # a group's redundancy never exceeds its observation count
+    if few.any():
+        if on_weak == "raise":
+            j = int(np.argmax(few))
+            raise VarianceComponentError(
+                f"group {groups.names[j]!r} has redundancy {r[j]:.2f} ({int(n[j])} observations): its variance "
+                f"component cannot be estimated (needs >= {min_redundancy:g}); merge it with another group, or "
+                f"keep its a-priori sigma (on_weak='keep')")
+        est &= ~few
+    converged = False
+    # Anderson acceleration of the fixed-point iteration x <- x + log f(x) on the log variance
+    # scales: groups that the data separate poorly (navigation positions vs attitudes of a narrow
+    # camera) otherwise gain ~1 % per round
+    xs: list[NDArray] = []
+    fs: list[NDArray] = []
+    x = np.zeros(k)
+    saved = None
+    scales: list[NDArray] = []
+    for _ in range(max(rounds, 1)):
+        f, r, _, n = group_variance_factors(result, groups)
+        # a group with (numerically) no redundancy in this round cannot move: its factor is 0 / 0
+        live = est & (r > 1e-9 * np.maximum(n, 1)) & np.isfinite(f) & (f > 0)
+        if saved is not None and (live != est).any():
+            # an accelerated step overshot into a group without redundancy: back to the plain iteration
+            w, result, x, total, f, r, n, live = saved
+            accelerate, saved = False, None
+            xs, fs = [], []
+        history.append(f.copy())
+        # a group whose redundancy has collapsed is at the boundary (its sigma heading to 0: the data
+        # cannot tell it from another group, e.g. positions from attitudes): decide on it now
+        scales.append(total.copy())
+        shrinking = np.zeros(k, bool)
+        if len(scales) > 10:
+            last = np.array(scales[-6:])
+            shrinking = np.all(np.diff(last, axis=0) < 0.0, axis=0)
+        collapsed = est & (r < BOUNDARY_REDUNDANCY) & (f < 1.0) & shrinking
+        if collapsed.any() or (np.all(np.abs(f[live] - 1.0) <= tol) and live.any()):
+            weak = est & (~(r >= min_redundancy) | collapsed)
+            if not weak.any():
+                converged = True
+                break
+            if on_weak == "raise":
+                j = int(np.argmax(weak))
+                raise VarianceComponentError(
+                    f"group {groups.names[j]!r} has redundancy {r[j]:.2f} ({int(n[j])} observations): its variance "
+                    f"component cannot be estimated (needs >= {min_redundancy:g}); merge it with another group, or "
+                    f"keep its a-priori sigma (on_weak='keep')")
+            est &= ~weak
+            if on_weak == "keep":
+                # back to the a-priori sigma of the weak groups, estimate the others again
+                back = np.where(weak, 1.0 / total, 1.0)
+                total *= back
+                x = np.where(weak, 0.0, x)
+                _apply_group_scale(w, groups, back)
+            # "freeze": the weak groups stay where the iteration took them
+            xs, fs, saved = [], [], None
+            result = solve(reweighted_problem(problem, w, result.cam_params, result.points, terms), opts)
+            continue
+        F = np.where(live, np.log(np.where(live, f, 1.0)), 0.0)
+        xs.append(x.copy())
+        fs.append(F)
+        x_new = x + F
+        saved = None
+        if accelerate and len(xs) >= 2 and np.max(np.abs(F)) < 0.2:
+            m = min(len(xs) - 1, 3)
+            dX = np.column_stack([xs[-i] - xs[-i - 1] for i in range(1, m + 1)])
+            dF = np.column_stack([fs[-i] - fs[-i - 1] for i in range(1, m + 1)])
+            gamma = np.linalg.lstsq(dF, F, rcond=None)[0]
+            cand = x + F - (dX + dF) @ gamma
+            # near the fixed point only, and within a factor 1.5 of the plain step's variance per group
+            x_new = np.where(live, np.clip(cand, x + F - 0.4, x + F + 0.4), x)
+            saved = (w.copy(), result, x.copy(), total.copy(), f, r, n, live)
+        step = np.exp(0.5 * (x_new - x))
+        x = x_new
+        total *= step
+        _apply_group_scale(w, groups, step)
+        result = solve(reweighted_problem(problem, w, result.cam_params, result.points, terms), opts)
+    f, r, _, n = group_variance_factors(result, groups)
+    if not converged and on_weak == "raise" and np.any(est & ~(r >= min_redundancy)):
+        j = int(np.argmax(est & ~(r >= min_redundancy)))
+        raise VarianceComponentError(
+            f"group {groups.names[j]!r} has redundancy {r[j]:.2f} ({int(n[j])} observations) after {rounds} "
+            f"rounds: its variance component cannot be estimated (needs >= {min_redundancy:g})")
+    scale = total * np.sqrt(np.where(est & np.isfinite(f) & (f > 0), f, 1.0))
+    return VarianceComponents(list(groups.names), scale, scale / np.sqrt(2.0 * np.maximum(r, 1e-12)), r, n, est,
+                              history, w, result, converged)

@@ -56,6 +56,13 @@ class MatchParams:
     local_search : float
         Search radius after the offset is removed, image-1 pixels (terrain relief parallax and the
         offset's variation over the image must fit in it).
+    presmooth : float
+        Gaussian smoothing (pixels) of both images before least-squares matching
+        (:func:`~lunarmap.matching.lsm.lsm_match`: against sub-pixel locking, with the sigma of the
+        correlated noise it leaves).
+    relief : bool
+        Least-squares matching estimates a quadratic relief displacement along each pair's epipolar
+        line, so the match is the conjugate of the window's centre, not of its average plane.
     """
 
     half: int = 7
@@ -64,10 +71,12 @@ class MatchParams:
     min_ncc: float = 0.6
     min_correlation: float = 0.7
     max_shift: float = 3.0
-    lsm_iterations: int = 20
+    lsm_iterations: int = 30
     saturation: float | None = None
     bias_sample: int = 64
     local_search: float = 16.0
+    presmooth: float = 1.0
+    relief: bool = True
 
 
 @dataclass
@@ -183,7 +192,8 @@ def match_points(image1: NDArray, image2: NDArray, sensor1: SensorModel, sensor2
     if j.size == 0:
         return res
     lsm = lsm_match(image1, image2, l1[j], s1[j], ncc.line[go], ncc.sample[go], pred.affine[j], half=params.half,
-                    max_iter=params.lsm_iterations, max_shift=params.max_shift)
+                    max_iter=params.lsm_iterations, max_shift=params.max_shift,
+                    presmooth=params.presmooth, epipolar=pred.epipolar[j] if params.relief else None)
     conv = lsm.converged
     status[j[~conv]] = STATUS["lsm_failed"]
     weak = conv & (lsm.correlation < params.min_correlation)

@@ -2,6 +2,7 @@
 
 from ..errors import SimulationWarning
 from .blocks import Measurements, SimulatedBlock, frame_block, linescan_site, local_enu, observe
+from .dlr import Blunders, DlrSimulation, dlr_block, inject_blunders
 from .mission import RenderedBlock, block_cameras, block_check_points, block_scene, render_block
 from .render import RenderSpec, render_image, surface_normals
 from .sampling import RasterSampler
@@ -24,4 +25,5 @@ __all__ = [
     "Measurements", "SimulatedBlock", "frame_block", "linescan_site", "local_enu", "observe",
     "render_block", "RenderedBlock", "block_scene", "block_cameras", "block_check_points",
     "lroc_site", "SimulatedSite", "SiteImageSpec", "APOLLO11_LIKE",
+    "dlr_block", "inject_blunders", "DlrSimulation", "Blunders",
 ]

@@ -21,9 +21,10 @@ the TRUE cameras (the rigorous models, not the adjustment's equations) plus Gaus
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Sequence
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ..camera import FrameCamera, InteriorOrientation, LineScanCamera, Shape
 from ..camera.geodesy import enu_basis, lonlat_height_to_xyz, xyz_to_lonlat_height
@@ -75,13 +76,15 @@ class SimulatedBlock:
         Metres per axis.
     true_offsets, true_drifts : ndarray (n_orbits, 6)
         Per-orbit navigation offsets (rad, m) and drifts (rad/s, m/s) in ``[w, c]`` order.
-    nav_sigma : ndarray (6,)
-        White-noise sigma of the navigation per parameter ``[w (rad), c (m)]``.
+    nav_sigma : ndarray (6,) or (n_orbits, 6)
+        White-noise sigma of the navigation per parameter ``[w (rad), c (m)]`` (per orbit when they differ).
     offset_sigma, drift_sigma : ndarray (6,)
         Sigmas the per-orbit offsets (rad, m) and drifts (rad/s, m/s) were drawn with (for the line-scan
         site: the per-image attitude drift, rad/s, in ``drift_sigma[:3]``).
     degree : int
         Correction degree the truth is expressed in.
+    camera : ndarray (n_img,) int
+        Camera of every image (``frame_block(cameras=...)``; 0 otherwise).
     """
 
     true_cameras: list
@@ -101,6 +104,7 @@ class SimulatedBlock:
     offset_sigma: Array = field(default_factory=lambda: np.zeros(6))
     drift_sigma: Array = field(default_factory=lambda: np.zeros(6))
     degree: int = 0
+    camera: NDArray[np.int64] | None = None
 
 
 def local_enu(xyz: Array) -> Array:
@@ -155,28 +159,33 @@ def clementine_interior(focal_mm: float = 90.0, pitch_um: float = 23.0, width: i
 
 
 def frame_block(orbits: int = 4, per_orbit: int = 12, points: int = 1500, n_control: int = 4, n_check: int = 0,
-                sigma_px: float = 0.3, altitude: float = 400e3, interior: InteriorOrientation | None = None,
-                nav_sigma_pos: float = 10.0, nav_sigma_att: float = np.radians(0.001),
+                sigma_px: float | Sequence[float] = 0.3, altitude: float = 400e3,
+                interior: InteriorOrientation | None = None,
+                nav_sigma_pos: float | Sequence[float] = 10.0, nav_sigma_att: float | Sequence[float] = np.radians(0.001),
                 offset_pos: float = 100.0, offset_att: float = np.radians(0.01),
                 drift_pos: float = 0.5, drift_att: float = np.radians(0.0002), control_sigma: float = 5.0,
-                relief: float = 2000.0, speed: float = 1600.0, seed: int = 0) -> SimulatedBlock:
+                relief: float = 2000.0, speed: float = 1600.0, seed: int = 0, cameras: int = 1,
+                tilt_deg: Sequence[float] | None = None, forward_overlap: float = 0.6, side_overlap: float = 0.3,
+                offsets: ArrayLike | None = None, drifts: ArrayLike | None = None,
+                min_rays: int = 2) -> SimulatedBlock:
     """The DLR paper's frame block (module docstring); lengths metres, angles radians, drifts per second.
 
     Parameters
     ----------
     orbits, per_orbit : int
-        Parallel strips and images per strip.
+        Parallel strips and images per strip (all cameras together).
     points : int
-        Ground points kept (seen by >= 2 images).
+        Ground points kept (seen by >= ``min_rays`` images).
     n_control, n_check : int
         Control points (near the block's corners and centre, then spread farthest-first) and check points
         (random others).
-    sigma_px : float
-        Image measurement noise, pixels.
+    sigma_px : float or sequence of float
+        Image measurement noise, pixels; one value per camera allowed (``Measurements.sigma`` is then
+        per observation).
     interior : InteriorOrientation, optional
         Default :func:`clementine_interior` (with its ``radial`` distortion).
-    nav_sigma_pos, nav_sigma_att : float
-        White noise of the navigation per image (m, rad).
+    nav_sigma_pos, nav_sigma_att : float or sequence of float
+        White noise of the navigation per image (m, rad); one value per orbit allowed.
     offset_pos, offset_att, drift_pos, drift_att : float
         Sigmas of the per-orbit offsets (m, rad) and drifts (m/s, rad/s) the navigation errors are drawn with.
     control_sigma : float
@@ -185,36 +194,76 @@ def frame_block(orbits: int = 4, per_orbit: int = 12, points: int = 1500, n_cont
         Terrain amplitude, metres.
     speed : float
         Ground speed, m/s (converts along-track spacing into image times).
+    cameras : int
+        Cameras per orbit; image ``k`` of an orbit is taken by camera ``k % cameras`` (the DLR
+        paper's simulation: 2 cameras on 2 orbits). Each camera's footprints follow each other at
+        the forward overlap, the cameras' interleaved by a fraction of the spacing.
+    tilt_deg : sequence of float, optional
+        Along-track look angle of every camera, degrees (positive: forward); the spacecraft is
+        shifted back along the orbit so that each image looks at its footprint centre. Default nadir.
+    forward_overlap, side_overlap : float
+        Overlap of one camera's consecutive footprints, and of neighbouring strips (at nadir).
+    offsets, drifts : array_like (orbits, 6), optional
+        The per-orbit navigation offsets (rad, m) and drifts (rad/s, m/s) in ``[w, c]`` order;
+        default: drawn with the sigmas above.
+    min_rays : int
+        Points seen by fewer images are not kept.
     """
     if orbits < 1 or per_orbit < 2:
         raise InvalidInputError(f"a frame block needs >= 1 orbit of >= 2 images, got {orbits} x {per_orbit}")
+    if cameras < 1 or per_orbit % cameras:
+        raise InvalidInputError(f"{per_orbit} images per orbit cannot be shared by {cameras} cameras")
+    tilts = np.zeros(cameras) if tilt_deg is None else np.radians(np.asarray(tilt_deg, float))
+    if tilts.shape != (cameras,):
+        raise InvalidInputError(f"tilt_deg needs one angle per camera ({cameras}), got {tilt_deg!r}")
+    if not (0.0 <= forward_overlap < 1.0 and 0.0 <= side_overlap < 1.0):
+        raise InvalidInputError("overlaps must be in [0, 1)")
     rng = np.random.default_rng(seed)
     io = interior or clementine_interior()
     R = MOON_RADIUS
     f_px = io.focal_length / io.pixel_pitch
     gsd = altitude / f_px
-    base = 0.4 * io.n_lines * gsd
-    strip = 0.7 * io.n_samples * gsd
-    lats = (np.arange(per_orbit) - (per_orbit - 1) / 2) * base / R
+    base = (1.0 - forward_overlap) * io.n_lines * gsd
+    strip = (1.0 - side_overlap) * io.n_samples * gsd
+    per_cam = per_orbit // cameras
+    # footprint centres: camera c's k-th image at (k + c / cameras) spacings along the strip
+    k_img = np.arange(per_orbit)
+    cam_of = k_img % cameras
+    along = (k_img // cameras + cam_of / cameras - (per_cam - 1 + (cameras - 1) / cameras) / 2) * base
+    lats = along / R
     lons = (np.arange(orbits) - (orbits - 1) / 2) * strip / R
     LON, LAT = np.meshgrid(lons, lats, indexing="ij")
     LAT, LON = LAT.ravel(), LON.ravel()
     n = LAT.size
     orbit = np.repeat(np.arange(orbits), per_orbit)
-    t = np.tile(np.arange(per_orbit) * base / speed, orbits)
+    camera = np.tile(cam_of, orbits)
+    tilt = tilts[camera]
+    # the spacecraft is back along the orbit by altitude * tan(tilt) when it looks at the footprint centre
+    LATC = LAT - altitude * np.tan(tilt) / R
+    t = LATC * R / speed
     t = t - t.reshape(orbits, per_orbit).mean(axis=1)[orbit]
-    E = enu_basis(np.degrees(LON), np.degrees(LAT))                      # rows east, north, up
+    E = enu_basis(np.degrees(LON), np.degrees(LATC))                     # rows east, north, up
     up, north, east = E[:, 2], E[:, 1], E[:, 0]
     C_true = (R + altitude + rng.normal(0, 500.0, n))[:, None] * up
-    # sensor frame: x = east (samples), y = south (lines run north to south), z = down (boresight)
-    R_nadir = np.stack([east, -north, -up], axis=-1)                   # columns: sensor axes in body-fixed
+    # sensor frame: x = east (samples), y = south (lines run north to south), z = down (boresight);
+    # a forward tilt turns the boresight towards north about the sensor x axis
+    ct, st = np.cos(tilt)[:, None], np.sin(tilt)[:, None]
+    R_nadir = np.stack([east, -north * ct - up * st, -up * ct + north * st], axis=-1)   # columns: sensor axes
     R_true = R_nadir @ rotvec_to_matrix(rng.normal(0, np.radians(0.05), (n, 3)))
     vel = speed * (R + altitude) / R * north
 
-    off = np.column_stack([rng.normal(0, offset_att, (orbits, 3)), rng.normal(0, offset_pos, (orbits, 3))])
-    dr = np.column_stack([rng.normal(0, drift_att, (orbits, 3)), rng.normal(0, drift_pos, (orbits, 3))])
-    nav_sig = np.array([nav_sigma_att] * 3 + [nav_sigma_pos] * 3)
-    err = off[orbit] + t[:, None] * dr[orbit] + rng.normal(0, 1, (n, 6)) * nav_sig
+    if offsets is None:
+        off = np.column_stack([rng.normal(0, offset_att, (orbits, 3)), rng.normal(0, offset_pos, (orbits, 3))])
+    else:
+        off = _per_orbit("offsets", offsets, orbits)
+    if drifts is None:
+        dr = np.column_stack([rng.normal(0, drift_att, (orbits, 3)), rng.normal(0, drift_pos, (orbits, 3))])
+    else:
+        dr = _per_orbit("drifts", drifts, orbits)
+    sig_att = np.broadcast_to(np.asarray(nav_sigma_att, float), (orbits,))
+    sig_pos = np.broadcast_to(np.asarray(nav_sigma_pos, float), (orbits,))
+    nav_sig_orbit = np.column_stack([sig_att, sig_att, sig_att, sig_pos, sig_pos, sig_pos])     # (orbits, 6)
+    err = off[orbit] + t[:, None] * dr[orbit] + rng.normal(0, 1, (n, 6)) * nav_sig_orbit[orbit]
     # true = nav corrected by err: R_true = R_nav exp([w]x)^T, C_true = C_nav + c
     R_nav = R_true @ rotvec_to_matrix(err[:, 0:3])
     C_nav = C_true - err[:, 3:6]
@@ -229,11 +278,28 @@ def frame_block(orbits: int = 4, per_orbit: int = 12, points: int = 1500, n_cont
     plon = rng.uniform(lons.min() - margin, lons.max() + margin, m)
     h = relief * (0.5 * np.sin(plat * R / 37e3 + 1.0) * np.cos(plon * R / 53e3) + 0.2 * np.sin(plon * R / 11e3))
     X = lonlat_height_to_xyz(np.degrees(plon), np.degrees(plat), h)
-    meas, X, _ = observe(true_cams, X, sigma_px, rng, n_points=points)
+    sig_cam = np.asarray(sigma_px, float)
+    if sig_cam.ndim == 0:
+        meas, X, _ = observe(true_cams, X, float(sig_cam), rng, n_points=points, min_rays=min_rays)
+    else:
+        if sig_cam.shape != (cameras,):
+            raise InvalidInputError(f"sigma_px needs one value per camera ({cameras}), got {sigma_px!r}")
+        meas, X, _ = observe(true_cams, X, 0.0, rng, n_points=points, min_rays=min_rays)
+        per_obs = sig_cam[camera[meas.cam_idx]]
+        meas.xy = meas.xy + rng.normal(0.0, 1.0, meas.xy.shape) * per_obs[:, None]
+        meas.sigma = per_obs       # type: ignore[assignment]
     control, check, ctl_xyz = _control_and_check(X, meas, n_control, n_check, control_sigma, rng, with_centre=True)
+    nav_sig = nav_sig_orbit[0].copy() if orbits == 1 or np.all(nav_sig_orbit == nav_sig_orbit[0]) else nav_sig_orbit
     return SimulatedBlock(true_cams, nav_cams, err.copy(), X, meas, orbit, t, control, check, ctl_xyz,
-                          float(control_sigma), off, dr, nav_sig,
-                          np.array([offset_att] * 3 + [offset_pos] * 3), np.array([drift_att] * 3 + [drift_pos] * 3), 0)
+                          float(control_sigma), off, dr, nav_sig, np.array([offset_att] * 3 + [offset_pos] * 3),
+                          np.array([drift_att] * 3 + [drift_pos] * 3), 0, camera)
+
+
+def _per_orbit(name: str, values: ArrayLike, orbits: int) -> Array:
+    a = np.asarray(values, float)
+    if a.shape != (orbits, 6):
+        raise InvalidInputError(f"{name} must be ({orbits}, 6) [w (rad), c (m)] per orbit, got {a.shape}")
+    return a.copy()
 
 
 def _nac_camera(lon_orbit: float, lat: float, roll: float, altitude: float, n_lines: int, n_samples: int,

@@ -1,0 +1,242 @@
+"""Quality control of the block adjustment (issue 11; the DLR paper, ``seeds/004``, sections 3-4).
+
+:func:`quality_control` runs, in the order asked for, on any :class:`~lunarmap.adjust.BundleProblem`
+(any image model: frame and line-scan cameras, RFMs, the BAL model):
+
+* ``"sequent"`` -- pre-screening of conjugate points by intersecting them from pairs and growing
+  subsets of their rays (:mod:`.sequent`);
+* ``"robust"`` -- robust (Danish; or Huber, Cauchy) reweighting of the image observations inside the
+  iteration (:mod:`.robust`);
+* ``"baarda"`` -- data snooping with w-tests of every observation: image coordinates, navigation
+  positions and attitudes, control coordinates (:mod:`.snooping`);
+* ``"variance"`` -- variance components of the paper's groups: image coordinates per camera,
+  navigation positions and attitudes per orbit, control points
+  (:func:`~lunarmap.adjust.variance.estimate_variance_components`);
+* ``"offsets"`` -- two-stage detection of per-orbit navigation offsets and drifts (:mod:`.offsets`).
+
+Indices never change (:mod:`.ledger`): removed observations get weight 0, points without rays are
+held fixed, so the :class:`QCReport` refers to the user's own observations, points and images.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+import xarray as xr
+from numpy.typing import NDArray
+
+from ...errors import QualityControlInputError
+from ..problem import BundleProblem
+from ..result import AdjustmentResult
+from ..solver import SolverOptions
+from ..variance import ObservationGroups, VarianceComponents, estimate_variance_components, observation_groups
+from .ledger import Decision, Ledger
+from .offsets import offset_drift_step
+from .report import QCReport
+from .robust import WEIGHT_FUNCTIONS, robust_step, weight_function
+from .sequent import SequentResult, sequent_screening
+from .snooping import snooping_step, w_tests
+
+__all__ = ["quality_control", "QCOptions", "QCResult", "QCReport", "Decision", "Ledger", "STEPS",
+           "sequent_screening", "SequentResult", "robust_step", "snooping_step", "w_tests", "offset_drift_step",
+           "WEIGHT_FUNCTIONS", "weight_function", "block_result"]
+
+#: the quality-control steps, by name
+STEPS = ("sequent", "robust", "baarda", "variance", "offsets")
+
+
+@dataclass
+class QCOptions:
+    """Settings of :func:`quality_control` (keyword arguments of each step's function).
+
+    Attributes
+    ----------
+    sequent_limit_km : float
+        Sequent limit (:func:`~.sequent.sequent_screening`).
+    units_per_km : float
+        Length unit of the block per kilometre (1000 for metres).
+    robust, baarda, variance, offsets : dict
+        Keyword arguments of :func:`~.robust.robust_step`, :func:`~.snooping.snooping_step`,
+        :func:`~lunarmap.adjust.variance.estimate_variance_components`, :func:`~.offsets.offset_drift_step`.
+    solver : SolverOptions, optional
+    robust_start : bool
+        Without the Sequent step, start every point at the intersection of its best pair of rays
+        (nothing is removed; a gross error then cannot drag the start).
+    """
+
+    sequent_limit_km: float = 10.0
+    units_per_km: float = 1000.0
+    robust: dict = field(default_factory=dict)
+    baarda: dict = field(default_factory=dict)
+    variance: dict = field(default_factory=dict)
+    offsets: dict = field(default_factory=dict)
+    solver: SolverOptions | None = None
+    robust_start: bool = True
+
+
+@dataclass
+class QCResult:
+    """Outcome of :func:`quality_control`.
+
+    Attributes
+    ----------
+    result : AdjustmentResult
+        The last adjustment (with the final weights).
+    problem : BundleProblem
+        The problem of the last adjustment (same indices as the input).
+    report : QCReport
+    ledger : Ledger
+        Weights and decisions (reuse it to continue).
+    sequent : SequentResult or None
+    variance : VarianceComponents or None
+    offsets : dict or None
+        :func:`~.offsets.offset_drift_step`'s outcome.
+    """
+
+    result: AdjustmentResult
+    problem: BundleProblem
+    report: QCReport
+    ledger: Ledger
+    sequent: SequentResult | None = None
+    variance: VarianceComponents | None = None
+    offsets: dict | None = None
+
+    @property
+    def removed_image_observations(self) -> NDArray[np.int64]:
+        """Image observations that are not in the final adjustment (removed or with a dropped point)."""
+        return np.flatnonzero(~self.ledger.active)
+
+
+def _best_pair_start(problem: BundleProblem, units_per_km: float) -> BundleProblem:
+    """The problem with every free point starting at the intersection of its best pair of rays.
+
+    Without the Sequent pre-screening a gross error of thousands of pixels drags the least-squares
+    intersection of a point far off, and the adjustment started there can drag it onto a projection
+    centre (where its partials blow up); the best pair (:mod:`.sequent`) is a start free of it.
+    Nothing is removed.
+    """
+    seq = sequent_screening(problem, limit_km=1e12, units_per_km=units_per_km, pairs_only=True)
+    best = seq.points["best_pair"].values
+    ok = np.all(best >= 0, axis=1) & ~problem.point_fixed()
+    if problem.priors is not None:
+        ok[problem.priors.idx] = False
+    pts = np.flatnonzero(ok)
+    if pts.size == 0:
+        return problem
+    o = problem.obs
+    obs = best[pts].ravel()
+    from ..intersection import intersect_points
+
+    X = problem.points.copy()
+    with np.errstate(all="ignore"):
+        Xb = intersect_points(problem.model, problem.cam_params, o.cam_idx[obs], np.repeat(np.arange(pts.size), 2),
+                              o.xy[obs], o.sigma[obs], n_pt=pts.size).xyz
+    good = np.all(np.isfinite(Xb), axis=1)
+    X[pts[good]] = Xb[good]
+    # a pair of gross errors can intersect behind another camera of the point: keep those starts
+    with np.errstate(all="ignore"):
+        x = problem.model.project(problem.cam_params, o.cam_idx, X[o.pt_idx])
+    bad = np.zeros(problem.n_points, bool)
+    bad[o.pt_idx[~np.all(np.isfinite(x), axis=1)]] = True
+    X[bad] = problem.points[bad]
+    return dataclasses.replace(problem, points=X)
+
+
+def _groups(ledger: Ledger, image_group, image_group_names) -> ObservationGroups:
+    pb = dataclasses.replace(ledger.base, terms=list(ledger.terms))
+    return observation_groups(pb, image_group, image_group_names)
+
+
+def quality_control(problem: BundleProblem, steps: Sequence[str] = ("sequent", "baarda", "variance"),
+                    image_group: NDArray | None = None, image_group_names: list | None = None,
+                    options: QCOptions | None = None) -> QCResult:
+    """Quality-controlled adjustment of ``problem`` (module docstring); the steps run in the order given.
+
+    Parameters
+    ----------
+    problem : BundleProblem
+        Observations with their a-priori sigmas; navigation observations as camera-level terms.
+    steps : sequence of str
+        Any of :data:`STEPS`, in the order to run them (each at most once).
+    image_group : (n_img,), optional
+        Camera (or any group label) of every image: the image-coordinate groups of the variance
+        components and of the report (default one group).
+    image_group_names : list of str, optional
+    options : QCOptions, optional
+
+    Raises
+    ------
+    QualityControlInputError
+        An unknown or repeated step, or a bad setting of a step.
+    VarianceComponentError
+        A group whose variance component cannot be estimated (unless ``variance={"on_weak": "keep"}``).
+    """
+    opt = options or QCOptions()
+    steps = list(steps)
+    bad = [s for s in steps if s not in STEPS]
+    if bad or len(set(steps)) != len(steps):
+        raise QualityControlInputError(f"quality-control steps must be distinct names of {STEPS}, got {steps}")
+    groups0 = observation_groups(problem, image_group, image_group_names)
+    obs_names = np.array(groups0.names, dtype=object)[groups0.image]
+    ledger = Ledger(problem, obs_names)
+    if "sequent" not in steps and opt.robust_start:
+        problem = _best_pair_start(problem, opt.units_per_km)
+        ledger.base = problem
+    first = ledger.adjust(opt.solver)
+    sigma0_first = first.sigma0
+    seq = vc = off = None
+    summary: dict = {"steps": steps}
+    for step in steps:
+        ledger.step = step
+        if step == "sequent":
+            seq = sequent_screening(ledger.problem(first), opt.sequent_limit_km, opt.units_per_km,
+                                    active=ledger.active, cam_params=problem.cam_params)
+            st = seq.points["status"].values
+            rejected = np.flatnonzero(ledger.active & ~seq.keep)
+            sig = seq.points["sigma"].values
+            ledger.remove_image(rejected, "sequent", 0, value=sig[problem.obs.pt_idx[rejected]])
+            summary["sequent_points_removed"] = int(np.sum(st == 2))
+            ledger.result = None   # start the next adjustment from the problem's own values
+        elif step == "robust":
+            robust_step(ledger, options=opt.solver, **opt.robust)
+        elif step == "baarda":
+            out = snooping_step(ledger, options=opt.solver, **opt.baarda)
+            summary["baarda_rounds"] = out["rounds"]
+            summary["max_w"] = out["max_w"]
+            summary["untestable"] = out["untestable"]
+        elif step == "variance":
+            groups = _groups(ledger, image_group, image_group_names)
+            kw = dict(opt.variance)
+            vc = estimate_variance_components(ledger.base, groups, opt.solver, weights=ledger.weights,
+                                              start=ledger.result, terms=ledger.terms, **kw)
+            ledger.weights = vc.weights
+            ledger.result = vc.result
+            for name, f, e in zip(vc.names, vc.scale, vc.estimated):
+                ledger.decisions.append(Decision("variance", len(vc.history), "group", 0, value=float(f),
+                                                 action="sigma scaled" if e else "kept", group=name))
+        elif step == "offsets":
+            off = offset_drift_step(ledger, options=opt.solver, **opt.offsets)
+    if ledger.result is None:
+        ledger.adjust(opt.solver)
+    res = ledger.result
+    summary["sigma0_first"] = float(sigma0_first)
+    summary["sigma0_last"] = float(res.sigma0)
+    groups_ds = None
+    if vc is not None:
+        groups_ds = xr.Dataset({"sigma_factor": ("group", vc.scale), "sigma_factor_sigma": ("group", vc.scale_sigma),
+                                "redundancy": ("group", vc.redundancy), "observations": ("group", vc.observations),
+                                "estimated": ("group", vc.estimated)},
+                               coords={"group": np.array(vc.names, dtype=object)})
+    report = QCReport(list(ledger.decisions), groups_ds, [] if off is None else off["rounds"], summary)
+    return QCResult(res, res.problem, report, ledger, seq, vc, off)
+
+
+def block_result(qc: QCResult, block):
+    """A :class:`~lunarmap.adjust.block.BlockResult` of a quality-controlled :class:`~lunarmap.adjust.block.Block`
+    (adjusted sensors, points, check points), the block's problem replaced by the final one."""
+    from ..block import Block, BlockResult
+
+    return BlockResult(Block(block.names, block.model, block.network, qc.problem, block.navigation), qc.result)

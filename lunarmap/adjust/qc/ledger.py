@@ -1,0 +1,278 @@
+"""The state of a quality-controlled adjustment: weights of every observation and every decision taken.
+
+A :class:`Ledger` starts from a problem's a-priori weights and records what each quality-control
+step does to them: image observations removed (weight 0), navigation and control observations
+down-weighted (their sigma times ``sqrt(factor)``, i.e. ``P_new = P_old / factor``, the DLR paper's
+``P/5``), points that lost their rays held fixed, images without observations held fixed. Every
+change is a :class:`Decision` (step, round, observation, test value, redundancy number, action).
+Indices never change: observation ``i`` of the base problem is observation ``i`` of every
+adjustment, so the decisions refer to the user's own measurements.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..intersection import intersect_points
+from ..problem import BundleProblem
+from ..result import AdjustmentResult
+from ..solver import SolverOptions, solve
+from ..weights import Weights, reweighted_problem
+
+__all__ = ["Decision", "Ledger", "DEGENERATE_NORMAL"]
+
+#: a free point whose normal-block trace exceeds this multiple of the median point's sits on a projection centre
+DEGENERATE_NORMAL = 1e4
+
+
+@dataclass
+class Decision:
+    """One quality-control decision.
+
+    Attributes
+    ----------
+    step : str
+        ``"sequent"``, ``"robust"``, ``"baarda"``, ``"variance"``, ``"offsets"``.
+    round : int
+        Adjustment round within the step (0 for pre-screening).
+    kind : str
+        ``"image"``, ``"control"``, ``"navigation"``, ``"point"``, ``"camera"``.
+    index : int
+        Image observation index, control point index (``priors`` order), term row, point or image.
+    image, point : int
+        Image and point concerned (-1 if none).
+    component : int
+        Coordinate (0 line, 1 sample), axis (0-2) or navigation parameter (-1 if none).
+    value : float
+        The test value: w-test, robust weight, sigma of the intersection (length unit), ...
+    redundancy : float
+        Redundancy number of the observation (NaN if not computed).
+    action : str
+        ``"removed"``, ``"downweighted"``, ``"dropped"`` (point without enough rays),
+        ``"fixed"`` (image without observations), ``"flagged"``.
+    group : str
+        Observation group (e.g. ``"image 0"``, ``"navigation position orbit 1"``).
+    """
+
+    step: str
+    round: int
+    kind: str
+    index: int
+    image: int = -1
+    point: int = -1
+    component: int = -1
+    value: float = float("nan")
+    redundancy: float = float("nan")
+    action: str = "removed"
+    group: str = ""
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+class Ledger:
+    """Weights and decisions of a quality-controlled adjustment of ``problem`` (module docstring).
+
+    Parameters
+    ----------
+    problem : BundleProblem
+        The base problem (a-priori weights).
+    image_group_names : (n_obs,) str, optional
+        Group name of every image observation, for the decisions.
+    """
+
+    def __init__(self, problem: BundleProblem, image_group_names: NDArray | None = None):
+        self.base = problem
+        self.weights = Weights.neutral(problem)
+        self.decisions: list[Decision] = []
+        self.terms = list(problem.terms)
+        o = problem.obs
+        self._obs_group = (np.asarray(image_group_names, dtype=object) if image_group_names is not None
+                           else np.full(o.n, "image", dtype=object))
+        self._control_pts = np.zeros(problem.n_points, bool)
+        if problem.priors is not None:
+            self._control_pts[problem.priors.idx[~problem.priors.fixed]] = True
+        self.result: AdjustmentResult | None = None
+        self._track_order = np.argsort(o.pt_idx, kind="stable")
+        self._track_start = np.searchsorted(o.pt_idx[self._track_order], np.arange(problem.n_points + 1))
+        self._touched: set[int] = set()
+        self._adjusted = False
+        self.step = "adjust"      # the step running, for decisions taken inside adjust()
+
+    # -- state -----------------------------------------------------------------------------------
+    @property
+    def active(self) -> NDArray[np.bool_]:
+        """Image observations still in the adjustment."""
+        return (self.weights.image_weight > 0) & ~self.weights.dropped_points[self.base.obs.pt_idx]
+
+    def problem(self, start: AdjustmentResult | None = None) -> BundleProblem:
+        """The reweighted problem, starting from ``start``'s unknowns (default the last result's).
+
+        Points that lost an observation since ``start`` start from a fresh intersection of their
+        remaining rays: a gross error may have dragged them far off, and a start there can make
+        the next adjustment as bad.
+        """
+        start = start if start is not None else self.result
+        cam, pts = (None, None) if start is None else (start.cam_params, start.points.copy())
+        if pts is not None and self._touched:
+            pts = self._reintersect(cam, pts)
+        return reweighted_problem(self.base, self.weights, cam, pts, self.terms)
+
+    def _reintersect(self, cam: NDArray, pts: NDArray) -> NDArray:
+        o = self.base.obs
+        act = self.active
+        touched = np.array(sorted(self._touched), np.int64)
+        self._touched.clear()
+        rays = np.bincount(o.pt_idx[act], minlength=self.base.n_points)
+        touched = touched[(rays[touched] >= 2) & ~self._control_pts[touched]]
+        if touched.size == 0:
+            return pts
+        remap = -np.ones(self.base.n_points, np.int64)
+        remap[touched] = np.arange(touched.size)
+        use = act & (remap[o.pt_idx] >= 0)
+        try:
+            X = intersect_points(self.base.model, cam, o.cam_idx[use], remap[o.pt_idx[use]], o.xy[use],
+                                 o.sigma[use] * self.weights.image_sigma[use][:, None], n_pt=touched.size).xyz
+        except (ValueError, np.linalg.LinAlgError):
+            return pts
+        ok = np.all(np.isfinite(X), axis=1)
+        pts[touched[ok]] = X[ok]
+        return pts
+
+    def adjust(self, options: SolverOptions | None = None, start: AdjustmentResult | None = None,
+               reweight=None) -> AdjustmentResult:
+        """Adjust the reweighted problem; the result is kept as the next start.
+
+        The datum is tested (``SolverOptions.check_datum``) in the first adjustment only: removing
+        observations does not change it, and a start dragged off by a gross error can make the
+        undamped test system indefinite where the damped iteration is not.
+        """
+        opts = options or SolverOptions()
+        if self._adjusted:
+            opts = dataclasses.replace(opts, check_datum=False)
+        self.result = solve(self.problem(start), opts, reweight=reweight)
+        self._adjusted = True
+        for _ in range(3):
+            bad = self._degenerate(self.result)
+            if bad.size == 0:
+                break
+            # points dragged onto a projection centre by gross errors (their partials blow up there):
+            # nothing about them can be tested; set them aside with all their rays
+            for j in bad:
+                self.weights.dropped_points[j] = True
+                self.decisions.append(Decision(self.step, 0, "point", int(j), -1, int(j), -1, np.nan, np.nan,
+                                               "dropped", "point on a projection centre"))
+            # held fixed with weight 0, but its projections must stay finite (0 * NaN is NaN in the cost):
+            # back to its start value
+            pts = self.result.points.copy()
+            pts[bad] = self.base.points[bad]
+            self.result = solve(reweighted_problem(self.base, self.weights, self.result.cam_params, pts, self.terms),
+                                dataclasses.replace(opts, check_datum=False), reweight=reweight)
+        return self.result
+
+    def _degenerate(self, res: AdjustmentResult) -> NDArray[np.int64]:
+        """Free tie points whose normal block is ``DEGENERATE_NORMAL`` times the median point's: partials blown
+        up near a projection centre (a point cannot be there; sigma and track length spread normal blocks
+        over two orders of magnitude at most)."""
+        from ..normal import Terms, linearize
+
+        pb = res.problem
+        fixed = pb.point_fixed()
+        lin = linearize(pb, res.state, res.structure, Terms(pb), fixed)
+        tr = np.trace(lin.V, axis1=1, axis2=2)
+        free = ~fixed & ~self._control_pts & (np.bincount(pb.obs.pt_idx[res.state.obs_weight > 0],
+                                                           minlength=pb.n_points) >= 2)
+        if free.sum() < 3:
+            return np.zeros(0, np.int64)
+        med = float(np.median(tr[free]))
+        return np.flatnonzero(free & ~(tr <= DEGENERATE_NORMAL * med))
+
+    def obs_group(self, i: int) -> str:
+        return str(self._obs_group[i])
+
+    # -- decisions ---------------------------------------------------------------------------------
+    def remove_image(self, obs: NDArray[np.int64] | int, step: str, rnd: int, value=np.nan, redundancy=np.nan,
+                     component=-1) -> None:
+        """Remove image observations (weight 0); points left with too few rays are dropped."""
+        o = self.base.obs
+        obs = np.atleast_1d(np.asarray(obs, np.int64))
+        val = np.broadcast_to(np.asarray(value, float), obs.shape)
+        red = np.broadcast_to(np.asarray(redundancy, float), obs.shape)
+        comp = np.broadcast_to(np.asarray(component, np.int64), obs.shape)
+        for i, v, r, c in zip(obs, val, red, comp):
+            if self.weights.image_weight[i] == 0.0:
+                continue
+            self.weights.image_weight[i] = 0.0
+            self.decisions.append(Decision(step, rnd, "image", int(i), int(o.cam_idx[i]), int(o.pt_idx[i]), int(c),
+                                           float(v), float(r), "removed", self.obs_group(int(i))))
+        self._touched.update(int(j) for j in np.unique(o.pt_idx[obs]))
+        self._settle(step, rnd, np.unique(o.pt_idx[obs]), np.unique(o.cam_idx[obs]))
+
+    def _settle(self, step: str, rnd: int, points: NDArray, images: NDArray) -> None:
+        """Drop points with fewer than 2 rays (control points excepted); fix images without observations."""
+        o = self.base.obs
+        act = self.active
+        rays = np.bincount(o.pt_idx[act], minlength=self.base.n_points)
+        for j in points:
+            if not self.weights.dropped_points[j] and rays[j] < 2 and not self._control_pts[j]:
+                self.weights.dropped_points[j] = True
+                self.decisions.append(Decision(step, rnd, "point", int(j), -1, int(j), -1, float(rays[j]), np.nan,
+                                               "dropped", "point"))
+                # its remaining rays leave with it
+                track = self._track_order[self._track_start[j]:self._track_start[j + 1]]
+                left = track[act[track]]
+                for i in left:
+                    self.decisions.append(Decision(step, rnd, "image", int(i), int(o.cam_idx[i]), int(j), -1, np.nan,
+                                                   np.nan, "dropped", self.obs_group(int(i))))
+        act = self.active
+        per_img = np.bincount(o.cam_idx[act], minlength=self.base.n_images)
+        observed = np.zeros(self.base.n_images, bool)
+        for t in self.terms:
+            observed |= np.asarray(t.observed_images(), bool)
+        for k in np.unique(np.concatenate([images, o.cam_idx[~act]])) if images.size else []:
+            if per_img[k] == 0 and not observed[k] and not self.weights.fixed_images[k]:
+                self.weights.fixed_images[k] = True
+                self.decisions.append(Decision(step, rnd, "camera", int(k), int(k), -1, -1, 0.0, np.nan, "fixed",
+                                               "image parameters"))
+
+    def reinstate_image(self, obs: NDArray[np.int64], step: str, rnd: int, value=np.nan) -> None:
+        """Give removed image observations their weight back; their points return if they have 2 rays again."""
+        o = self.base.obs
+        obs = np.atleast_1d(np.asarray(obs, np.int64))
+        val = np.broadcast_to(np.asarray(value, float), obs.shape)
+        for i, v in zip(obs, val):
+            self.weights.image_weight[i] = 1.0
+            self.decisions.append(Decision(step, rnd, "image", int(i), int(o.cam_idx[i]), int(o.pt_idx[i]), -1,
+                                           float(v), np.nan, "reinstated", self.obs_group(int(i))))
+        pts = np.unique(o.pt_idx[obs])
+        ok = self.weights.image_weight > 0
+        rays = np.bincount(o.pt_idx[ok], minlength=self.base.n_points)
+        for j in pts:
+            if self.weights.dropped_points[j] and rays[j] >= 2:
+                self.weights.dropped_points[j] = False
+                self.decisions.append(Decision(step, rnd, "point", int(j), -1, int(j), -1, float(rays[j]), np.nan,
+                                               "reinstated", "point"))
+        self._touched.update(int(j) for j in pts)
+        for k in np.unique(o.cam_idx[obs]):
+            self.weights.fixed_images[k] = False
+
+    def downweight_term(self, term: int, row: int, factor: float, step: str, rnd: int, value=np.nan,
+                        redundancy=np.nan, image=-1, component=-1, group="navigation") -> None:
+        """``P_new = P_old / factor`` for one row of a camera-level term (navigation observation)."""
+        self.weights.term_sigma[term][row] *= np.sqrt(factor)
+        self.decisions.append(Decision(step, rnd, "navigation", int(row), int(image), -1, int(component), float(value),
+                                       float(redundancy), "downweighted", group))
+
+    def downweight_control(self, k: int, factor: float, step: str, rnd: int, value=np.nan, redundancy=np.nan,
+                           component=-1) -> None:
+        """``P_new = P_old / factor`` for control point ``k`` (``priors`` order)."""
+        self.weights.control_sigma[k] *= np.sqrt(factor)
+        self.decisions.append(Decision(step, rnd, "control", int(k), -1, int(self.base.priors.idx[k]), int(component),
+                                       float(value), float(redundancy), "downweighted", "control"))
+
+    def of_step(self, step: str) -> list[Decision]:
+        return [d for d in self.decisions if d.step == step]

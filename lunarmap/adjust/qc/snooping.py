@@ -1,0 +1,296 @@
+"""Baarda's data snooping in every observation group (DLR paper, ``seeds/004``, section 4.1).
+
+After each adjustment every observation ``i`` is tested with its w-test (Baarda 1968)::
+
+    w_i = v_i / (sigma_i sqrt(r_i))
+
+``v_i / sigma_i`` the whitened residual, ``r_i`` its redundancy number
+(:class:`~lunarmap.adjust.precision.Precision`: image coordinates, control point coordinates,
+navigation observations), against the a-priori ``sigma0 = 1`` (or the a-posteriori one, Pope's
+tau-test, ``sigma0="aposteriori"``). Observations with ``r_i < min_redundancy`` cannot be tested
+(a gross error there is invisible) and are counted, not tested. If the largest ``|w|`` exceeds the
+limit (the paper: 4), only that observation is acted on, the block is adjusted again and tested
+again, until no test fails: an image observation is removed; a navigation or control observation
+is not removed but down-weighted, ``P_new = P_old / factor`` (the paper: 5); an observation
+already down-weighted ``max_downweights`` times and still failing is flagged and its weight cut
+to ``1e-6`` of the a-priori one.
+
+Once no test fails, image observations removed earlier that the final adjustment predicts within
+the limit are given back (``reinstate``, once each) and the testing goes on: while large errors are
+still in the block they spread into the other observations of their points, and the largest
+w-test may point at a good one.
+
+``per_round="point"`` acts in one round on the largest failing image observation of every point
+(and the largest failing navigation / control observation), for large blocks where one removal
+per adjustment would take too many rounds; the paper's way is ``"one"``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ...errors import DatumDefectError, QualityControlError, QualityControlInputError
+from ..normal import image_residuals, prior_terms
+from ..solver import SolverOptions
+from .ledger import Decision, Ledger
+
+__all__ = ["w_tests", "snooping_step"]
+
+
+#: point-normal eigenvalue ratios tried in turn when the precision fails: gross errors can drag a point onto
+#: a projection centre, where its partials blow up and its normal block is rounding noise
+_FALLBACK_RATIOS = (1e-6, 1e-4, 1e-2)
+
+
+def _precision(res):
+    """The result's posterior precision with redundancy numbers, treating degenerate points as undetermined if
+    the plain computation fails (recorded in ``Precision.method``)."""
+    from ..precision import posterior_precision
+
+    try:
+        return res.precision()
+    except DatumDefectError as exc:
+        last = exc
+    for ratio in _FALLBACK_RATIOS:
+        try:
+            pr = posterior_precision(res, redundancy=True, undetermined_ratio=ratio)
+        except DatumDefectError as exc:
+            last = exc
+            continue
+        pr.method += f" (points with normal-matrix eigenvalue ratio < {ratio:g} undetermined)"
+        res._precision = pr
+        return pr
+    raise QualityControlError(f"data snooping: the posterior precision of adjustment with sigma0 {res.sigma0:.3g} "
+                              f"failed even with degenerate points set aside ({last})") from last
+
+
+def w_tests(ledger: Ledger, sigma0: str = "apriori", min_redundancy: float = 0.02) -> dict:
+    """w-tests of every observation of the ledger's last adjustment.
+
+    Returns
+    -------
+    dict
+        ``image`` (n_obs, 2), ``image_r`` (n_obs, 2); ``control`` (k, 3), ``control_r`` (k, 3) in the
+        order of the base priors (NaN for fixed ones); ``terms`` list of (m_t,), ``terms_r``; NaN
+        where not tested (removed, fixed, redundancy below ``min_redundancy``, pseudo-observations);
+        ``untestable`` the number of observations below ``min_redundancy``; ``sigma0``.
+    """
+    res = ledger.result
+    pb = res.problem
+    pr = _precision(res)
+    s0 = res.sigma0 if sigma0 == "aposteriori" else 1.0
+    z = image_residuals(pb, res.state)
+    r = pr.redundancy_numbers
+    act = (res.state.obs_weight > 0)[:, None] & np.ones((1, 2), bool)
+    ok = act & (r >= min_redundancy)
+    untestable = int(np.sum(act & ~ok))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w_img = np.where(ok, z / (s0 * np.sqrt(np.where(ok, r, 1.0))), np.nan)
+    out = {"image": w_img, "image_r": np.where(act, r, np.nan)}
+    base = ledger.base.priors
+    k = 0 if base is None else base.idx.size
+    w_c = np.full((k, 3), np.nan)
+    r_c = np.full((k, 3), np.nan)
+    pt = prior_terms(pb, res.points)
+    if pt is not None and k:
+        rows = np.flatnonzero(~base.fixed)            # weighted base priors come first in pb.priors
+        zc, rc = pt[1][:rows.size], pr.control_redundancy[:rows.size]
+        okc = rc >= min_redundancy
+        untestable += int(np.sum(~okc))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            w_c[rows] = np.where(okc, zc / (s0 * np.sqrt(np.where(okc, rc, 1.0))), np.nan)
+        r_c[rows] = rc
+    out["control"], out["control_r"] = w_c, r_c
+    wt, rt = [], []
+    for i, t in enumerate(pb.terms):
+        rx, _ = t.linearize(res.cam_params, res._term_extra(i))
+        rr = pr.term_redundancy[i]
+        table = getattr(t, "row_table", None)
+        obs_rows = np.ones(rx.size, bool) if table is None else table()["kind"] == 0
+        okt = obs_rows & (rr >= min_redundancy)
+        untestable += int(np.sum(obs_rows & ~okt))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            wt.append(np.where(okt, rx / (s0 * np.sqrt(np.where(okt, rr, 1.0))), np.nan))
+        rt.append(rr)
+    out["terms"], out["terms_r"] = wt, rt
+    out["untestable"] = untestable
+    out["sigma0"] = res.sigma0
+    return out
+
+
+def _term_info(ledger: Ledger, t: int, row: int) -> tuple[int, int, str]:
+    term = ledger.terms[t]
+    table = getattr(term, "row_table", None)
+    if table is None:
+        return -1, -1, getattr(term, "name", f"term {t}")
+    rt = table()
+    img, par, orb = int(rt["image"][row]), int(rt["param"][row]), int(rt["orbit"][row])
+    names = list(getattr(ledger.base.model, "param_names", []))
+    kind = "attitude" if par < len(names) and names[par].startswith("w") else "position"
+    return img, par, f"{getattr(term, 'name', 'navigation')} {kind} orbit {orb}"
+
+
+def _reinstatable(ledger: Ledger, limit: float, done: set) -> NDArray[np.int64]:
+    """Image observations removed by data snooping that the final adjustment predicts within the limit.
+
+    While large errors are still in the block they spread into the other observations of their
+    points and images, and the largest w-test may point at a good observation. Once no test fails,
+    every observation removed so far whose residual against the adjustment, ``|v| / sigma``, is below
+    the limit (its w-test could only be smaller: the prediction's variance adds to ``sigma^2``) is
+    given back, once; the testing then goes on.
+    """
+    res = ledger.result
+    o = ledger.base.obs
+    removed = np.array([d.index for d in ledger.decisions if d.step == "baarda" and d.kind == "image"
+                        and d.action == "removed" and d.index not in done], np.int64)
+    removed = removed[ledger.weights.image_weight[removed] == 0.0] if removed.size else removed
+    if removed.size == 0:
+        return removed
+    x = ledger.base.model.project(res.cam_params, o.cam_idx[removed], res.points[o.pt_idx[removed]])
+    z = np.abs(x - o.xy[removed]) / (o.sigma[removed] * ledger.weights.image_sigma[removed][:, None])
+    return removed[np.all(np.isfinite(z), axis=1) & (np.max(z, axis=1) <= limit)]
+
+
+def _restorable(ledger: Ledger, limit: float, done: set) -> list:
+    """Down-weighted navigation rows and control points whose whitened residual at their a-priori weight is
+    within the limit (see :func:`_reinstatable`); keys ``("term", t, row)`` / ``("control", k)``."""
+    res = ledger.result
+    out = []
+    for t, f in enumerate(ledger.weights.term_sigma):
+        rows = np.flatnonzero(f > 1.0)
+        if rows.size == 0:
+            continue
+        rx, _ = res.problem.terms[t].linearize(res.cam_params, res._term_extra(t))
+        z = np.abs(rx[rows]) * f[rows]          # back to the a-priori sigma
+        out += [("term", t, int(r)) for r, zz in zip(rows, z) if zz <= limit and ("term", t, int(r)) not in done]
+    k = np.flatnonzero(ledger.weights.control_sigma > 1.0)
+    if k.size:
+        pt = prior_terms(res.problem, res.points)
+        base = ledger.base.priors
+        rows = np.cumsum(~base.fixed) - 1
+        for kk in k:
+            if base.fixed[kk]:
+                continue
+            z = np.max(np.abs(pt[1][rows[kk]])) * ledger.weights.control_sigma[kk]
+            if z <= limit and ("control", int(kk)) not in done:
+                out.append(("control", int(kk)))
+    return out
+
+
+def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_rounds: int = 500,
+                  per_round: str = "one", sigma0: str = "apriori", min_redundancy: float = 0.02,
+                  max_downweights: int = 3, reinstate: bool = True, options: SolverOptions | None = None) -> dict:
+    """Data snooping on the ledger's problem until no w-test exceeds ``limit`` (module docstring).
+
+    Returns
+    -------
+    dict
+        ``rounds`` (adjustments), ``max_w`` of the last round, ``untestable`` observations,
+        ``tests`` (the last :func:`w_tests`).
+
+    Raises
+    ------
+    QualityControlInputError
+        ``limit <= 0``, ``factor <= 1``, unknown ``per_round`` or ``sigma0``.
+    """
+    if not (np.isfinite(limit) and limit > 0):
+        raise QualityControlInputError(f"the Baarda limit must be > 0, got {limit!r}")
+    if not (np.isfinite(factor) and factor > 1):
+        raise QualityControlInputError(f"the down-weighting factor must be > 1, got {factor!r}")
+    if per_round not in ("one", "point"):
+        raise QualityControlInputError(f"per_round must be 'one' or 'point', got {per_round!r}")
+    if sigma0 not in ("apriori", "aposteriori"):
+        raise QualityControlInputError(f"sigma0 must be 'apriori' or 'aposteriori', got {sigma0!r}")
+    reinstated: set[int] = set()
+    restored: set = set()
+    hits_term: dict[tuple[int, int], int] = {}
+    hits_ctl: dict[int, int] = {}
+    o = ledger.base.obs
+    tests = {}
+    rnd = 0
+    for rnd in range(1, max_rounds + 1):
+        ledger.adjust(options)
+        try:
+            tests = w_tests(ledger, sigma0, min_redundancy)
+        except QualityControlError:
+            # no precision at this state (gross errors distort it beyond repair): remove the image
+            # observation with the largest normalised residual, without a w-test, and go on
+            res = ledger.result
+            z = np.max(np.abs(res.image_residuals()) / res.problem.obs.sigma, axis=1)
+            z[~ledger.active] = -1.0
+            i = int(np.argmax(z))
+            ledger.remove_image(i, "baarda", rnd, value=float(z[i]))
+            ledger.decisions[-1].group += " (no precision: largest residual)"
+            continue
+        wi = np.abs(tests["image"])
+        wi_obs = np.nanmax(np.where(np.isnan(wi), -1.0, wi), axis=1)
+        cands: list[tuple[float, str, int, int]] = []      # (|w|, kind, a, b)
+        if wi_obs.size and wi_obs.max() > limit:
+            if per_round == "one":
+                i = int(np.argmax(wi_obs))
+                cands.append((wi_obs[i], "image", i, -1))
+            else:
+                fail = np.flatnonzero(wi_obs > limit)
+                top = {}
+                for i in fail[np.argsort(-wi_obs[fail])]:
+                    top.setdefault(int(o.pt_idx[i]), int(i))
+                cands += [(wi_obs[i], "image", i, -1) for i in top.values()]
+        wc = np.abs(tests["control"])
+        if wc.size and np.nanmax(np.where(np.isnan(wc), -1, wc)) > limit:
+            k, a = np.unravel_index(np.nanargmax(np.where(np.isnan(wc), -1, wc)), wc.shape)
+            cands.append((wc[k, a], "control", int(k), int(a)))
+        for t, wt in enumerate(tests["terms"]):
+            aw = np.abs(wt)
+            if aw.size and np.nanmax(np.where(np.isnan(aw), -1, aw)) > limit:
+                row = int(np.nanargmax(np.where(np.isnan(aw), -1, aw)))
+                cands.append((aw[row], "term", t, row))
+        if not cands:
+            if not reinstate:
+                break
+            back = _reinstatable(ledger, limit, reinstated)
+            rows = _restorable(ledger, limit, restored)
+            if not back.size and not rows:
+                break
+            reinstated.update(int(i) for i in back)
+            if back.size:
+                ledger.reinstate_image(back, "baarda", rnd)
+            for key in rows:
+                restored.add(key)
+                if key[0] == "control":
+                    ledger.weights.control_sigma[key[1]] = 1.0
+                else:
+                    ledger.weights.term_sigma[key[1]][key[2]] = 1.0
+                ledger.decisions.append(Decision("baarda", rnd, "navigation" if key[0] == "term" else "control",
+                                                 key[-1], action="reinstated"))
+            continue
+        cands.sort(key=lambda c: -c[0])
+        if per_round == "one":
+            cands = cands[:1]
+        for val, kind, a, b in cands:
+            if kind == "image":
+                comp = int(np.nanargmax(np.where(np.isnan(wi[a]), -1, wi[a])))
+                ledger.remove_image(a, "baarda", rnd, value=float(tests["image"][a, comp]),
+                                    redundancy=float(tests["image_r"][a, comp]), component=comp)
+            elif kind == "control":
+                n = hits_ctl[a] = hits_ctl.get(a, 0) + 1
+                f = factor if n <= max_downweights else 1e6
+                ledger.downweight_control(a, f, "baarda", rnd, float(tests["control"][a, b]),
+                                          float(tests["control_r"][a, b]), component=b)
+                if n > max_downweights:
+                    ledger.decisions[-1].action = "flagged"
+            else:
+                img, par, group = _term_info(ledger, a, b)
+                n = hits_term[(a, b)] = hits_term.get((a, b), 0) + 1
+                f = factor if n <= max_downweights else 1e6
+                ledger.downweight_term(a, b, f, "baarda", rnd, float(tests["terms"][a][b]),
+                                       float(tests["terms_r"][a][b]), image=img, component=par, group=group)
+                if n > max_downweights:
+                    ledger.decisions[-1].action = "flagged"
+    else:
+        ledger.adjust(options)
+        tests = w_tests(ledger, sigma0, min_redundancy)
+    allw = np.concatenate([np.abs(tests["image"]).ravel(), np.abs(tests["control"]).ravel()] +
+                          [np.abs(w) for w in tests["terms"]])
+    return {"rounds": rnd, "max_w": float(np.nanmax(allw)) if np.any(np.isfinite(allw)) else np.nan,
+            "untestable": tests.get("untestable", 0), "tests": tests}
