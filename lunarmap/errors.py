@@ -244,3 +244,19 @@ class TrajectoryFitError(OrientationKernelError, ConvergenceError):
 
 class BlockMissionError(InvalidInputError, FileNotFoundError):
     """A synthetic block-mission folder is missing, incomplete or does not match its manifest."""
+
+
+# --- Reliability (issue 15): named errors for what fuzzing the readers found ---
+
+class LabelKeywordError(LabelError, KeyError):
+    """A label lacks a keyword or group that was asked for; the message names the label file and the keyword path."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0]) if self.args else ""
+
+
+class TiePointFormatError(InvalidInputError):
+    """A tie-point table file is unreadable or is not a tie-point table (missing variable, bad index, NaN)."""
+
+
+__all__ += ["LabelKeywordError", "TiePointFormatError"]

@@ -78,7 +78,7 @@ class KaguyaTcDriver(Driver):
             "detector_center_line": float(self.ik("BORESIGHT_LINE")),
             "detector_center_sample": float(self.ik("BORESIGHT_SAMPLE")),
             "starting_detector_line": 1.0,
-            "starting_detector_sample": float(self.label["FIRST_PIXEL_NUMBER"]) - 0.5,
+            "starting_detector_sample": self.as_float(self.value_at("FIRST_PIXEL_NUMBER"), "FIRST_PIXEL_NUMBER") - 0.5,
             "line_summing": 1,
             "sample_summing": 1,
             "optical_distortion": {"kaguyalism": {
