@@ -35,6 +35,10 @@ class Quantity(float):
     def __repr__(self) -> str:
         return f"Quantity({float(self)!r}, {self.unit!r})"
 
+    def __reduce__(self) -> tuple[type, tuple[float, str]]:
+        # float's own reduction calls Quantity(value) without the unit: labels would not unpickle
+        return Quantity, (float(self), self.unit)
+
 
 class Label(dict):
     """An ordered, case-insensitive mapping of a PVL block.
