@@ -8,6 +8,7 @@ from scipy.optimize import least_squares
 
 from lunarmap.adjust import (BALData, SolverOptions, bal_to_problem, problem_to_bal_cameras, read_bal, solve,
                              write_bal)
+from conftest import require
 from blockhelp import frame_case
 from lunarmap.adjust.normal import AdjustmentState, image_residuals as _image_residuals, prior_terms as _prior_terms
 
@@ -165,8 +166,7 @@ def _lin_and_system(pb, compiled, mu):
 def test_compiled_schur_matches_numpy_path():
     from lunarmap.adjust.schur import HAVE_COMPILED
 
-    if not HAVE_COMPILED:
-        pytest.skip("numba not installed")
+    require(HAVE_COMPILED, "numba (the compiled adjustment kernels)")
     pb = frame_case(orbits=3, per_orbit=6, points=400, seed=11).problem
     for mu in (0.0, 1e-3):
         _, _, (S1, r1, V1, D1) = _lin_and_system(pb, True, mu)
