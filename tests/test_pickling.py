@@ -152,3 +152,35 @@ def test_block_and_results(solved):
     for name, sensor in res.adjusted_sensors().items():
         a, b = sensor.ground_to_image(ground), copy.adjusted_sensors()[name].ground_to_image(ground)
         assert np.array_equal(a[0], b[0], equal_nan=True) and np.array_equal(a[1], b[1], equal_nan=True)
+
+
+def test_samplers_intersections_and_parameter_objects(cameras):
+    from lunarmap.adjust import NavigationSpec, SensorImageModel, SolverOptions, intersect_points
+    from lunarmap.camera import DtmSampler
+    from lunarmap.matching import TiePointParams
+    from lunarmap.simulate import synthetic_dtm
+    from lunarmap.simulate.sampling import RasterSampler
+
+    dtm = synthetic_dtm(30.0, 10.0, 2000.0, 20.0, seed=1)
+    lon, lat = np.linspace(29.99, 30.01, 7), np.linspace(9.99, 10.01, 7)
+    for sampler in (DtmSampler(dtm), RasterSampler(dtm)):
+        sampler(lon, lat)                                  # caches (a projection) built before pickling
+        assert np.array_equal(roundtrip(sampler)(lon, lat), sampler(lon, lat), equal_nan=True)
+
+    cam = cameras["frame"]
+    other = FrameCamera(cam.interior, polar_orbit_eo(lat_center=10.0, lon=30.05, half_span=0.0, step=1.0), Shape.moon())
+    model = SensorImageModel([cam, other])
+    X = cam.image_to_ground(*_pixels(cam.n_lines, cam.n_samples, 30), height=0.0)
+    seen = np.all(np.isfinite(np.column_stack(other.ground_to_image(X))), axis=1)
+    X = X[seen]
+    n = X.shape[0]
+    xy = model.project(np.zeros((2, 6)), np.repeat([0, 1], n), np.concatenate([X, X]))
+    res = intersect_points(model, np.zeros((2, 6)), np.repeat([0, 1], n), np.tile(np.arange(n), 2), xy, 0.3, n_pt=n)
+    copy = roundtrip(res)
+    assert np.array_equal(copy.xyz, res.xyz) and np.array_equal(copy.cov, res.cov, equal_nan=True)
+    for obj in (cam.interior, cam.shape, SolverOptions(ftol=1e-9),
+                NavigationSpec(orbit={"a": 0}, position_sigma=1.0, attitude_sigma=1e-6), TiePointParams()):
+        assert roundtrip(obj) == obj
+    times = cameras["linescan"].line_times          # no __eq__: compared by what it computes
+    lines = np.linspace(-10.0, 4010.0, 50)
+    assert np.array_equal(roundtrip(times).time(lines), times.time(lines))
