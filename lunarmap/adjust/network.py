@@ -395,4 +395,8 @@ def read_network(path: str | os.PathLike) -> ControlNetwork:
     NetworkFormatError
         Not a lunarmap control network, or an inconsistent one.
     """
-    return network_from_dataset(load_netcdf(path, NetworkFormatError, "control network"))
+    ds = load_netcdf(path, NetworkFormatError, "control network")
+    try:
+        return network_from_dataset(ds)
+    except NetworkFormatError as err:   # name the file: the dataset does not know where it came from
+        raise NetworkFormatError(f"{path}: {err}") from None

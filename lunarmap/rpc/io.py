@@ -74,7 +74,11 @@ def read_netcdf(path: str | os.PathLike[str]) -> RationalFunctionModel:
     RpcFormatError
         The file is not a lunarmap RPC dataset.
     """
-    return RationalFunctionModel.from_dataset(load_netcdf(path, RpcFormatError, "RPC model"))
+    ds = load_netcdf(path, RpcFormatError, "RPC model")
+    try:
+        return RationalFunctionModel.from_dataset(ds)
+    except RpcFormatError as err:   # name the file: the dataset does not know where it came from
+        raise RpcFormatError(f"{path}: {err}") from None
 
 
 def rpc_txt_keywords(model: RationalFunctionModel) -> dict[str, float]:
