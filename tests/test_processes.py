@@ -139,6 +139,8 @@ def test_worker_killed_mid_graph_the_graph_completes_identically(client):
     done_at_kill = sum(f.status == "finished" for f in futures)
     os.kill(victim, signal.SIGKILL)
     results = client.gather(futures)
+    print(f"worker process {victim} killed with {done_at_kill} of {len(cams)} tasks finished; "
+          f"results computed by {sorted({pid for pid, _ in results})}, workers now {sorted(_pids(client))}")
     assert 0 < done_at_kill < len(cams) - 2, done_at_kill          # the kill landed mid-graph
     for (_, coeffs), ref in zip(results, serial):
         assert np.array_equal(coeffs, ref)                          # identical to serial
