@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import collections
 import json
-import math
 import os
 import shutil
 import signal
@@ -394,7 +393,3 @@ def fuzz(target: Target, max_examples: int, derandomize: bool = True, seed: int 
         run()
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
-
-
-def finite(x: float) -> bool:
-    return isinstance(x, float) and math.isfinite(x)
