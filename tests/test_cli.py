@@ -112,14 +112,24 @@ def test_demo_runs_the_whole_chain(tmp_path, capsys):
 
     rpcs = sorted(out.glob("*_RPC.TXT"))
     assert len(rpcs) == 12
-    worst = 0.0
+    # the fits' own check RMS per camera kind, as printed: "check RMS: nac 1.6e-06 px, tc 8.5e-02 px, ..."
+    printed = text.split("check RMS:")[1].split("\n")[0]
+    check_rms = {kind: float(value) for kind, value in
+                 (part.split()[:2] for part in printed.split(","))}
+    assert set(check_rms) == {"nac", "tc", "frame"}
+    worst: dict[str, float] = {}
     for f in rpcs:
         name = f.name[: -len("_RPC.TXT")]
+        kind = name.split("_")[1]
         cam = lunarmap.load_camera(out / "mission" / f"{name}.lbl", out / "adjusted.tm")
         rfm = read_rpc_txt(f)
         assert (rfm.n_lines, rfm.n_samples) == (cam.n_lines, cam.n_samples)
         li, sa = np.meshgrid(np.linspace(1, cam.n_lines - 1, 7), np.linspace(1, cam.n_samples - 1, 7), indexing="ij")
         X = cam.image_to_ground(li.ravel(), sa.ravel(), height=100.0)
         rl, rs = rfm.ground_to_image(X)
-        worst = max(worst, float(np.max(np.hypot(rl - li.ravel(), rs - sa.ravel()))))
-    assert worst < 0.05, worst                        # px; the fits' own check RMS is ~1e-3 px
+        worst[kind] = max(worst.get(kind, 0.0), float(np.max(np.hypot(rl - li.ravel(), rs - sa.ravel()))))
+    # measured (seed 0): worst / check RMS = 2.8 (nac, 4.5e-6 px), 2.2 (tc, 0.19 px: a cubic cannot follow the
+    # TC's kaguyalism along-track distortion), 1.9 (frame, 4.1e-5 px); a file that did not reproduce its
+    # camera would be off by pixels
+    for kind, err in worst.items():
+        assert err <= max(5.0 * check_rms[kind], 1e-5), (kind, err, check_rms[kind])
