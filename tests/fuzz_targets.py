@@ -250,8 +250,15 @@ def call_image_support(path: Path, seed: Seed) -> None:
     from lunarmap.orientation.drivers import image_support
     from lunarmap.spice import ensure_loaded
 
-    ensure_loaded(seed.context["kernels"])  # a no-op unless another target loaded other kernels
+    ensure_loaded(seed.context["kernels"])  # a no-op after prepare_kernels
     _use_camera(camera_from_isd(image_support(path, seed.context["kernels"])))
+
+
+def prepare_kernels(seed: Seed) -> None:
+    """Load the seed's kernel set before the input (SPICE keeps the kernel files open while loaded)."""
+    from lunarmap.spice import ensure_loaded
+
+    ensure_loaded(seed.context["kernels"])
 
 
 def call_image_list(path: Path, seed: Seed) -> None:
@@ -341,7 +348,8 @@ def build_targets(folder: str | os.PathLike[str]) -> dict[str, Target]:
 
     def label_target(name: str, pairs: list[tuple[Path, KernelSet]]) -> None:
         if pairs:
-            targets[name] = Target(name, call_image_support, [seed(p, kernels=k) for p, k in pairs])
+            targets[name] = Target(name, call_image_support, [seed(p, kernels=k) for p, k in pairs],
+                                   prepare=prepare_kernels)
 
     label_target("image_support_synthetic", [(p, mission_set) for p in labels])
     for name, key in (("lro", "lro_nac"), ("kaguya", "kaguya_tc"), ("clementine", "clementine_uvvis")):

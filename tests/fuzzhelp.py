@@ -10,7 +10,8 @@ spoiled), or a random input altogether. The contract checked on every input (:fu
   e.g. projects a point through the model it read) or raises a :class:`lunarmap.errors.LunarmapError`;
   any other exception (a raw ``KeyError``, ``IndexError``, ``ValueError``...) is a failure;
 * it returns within :data:`TIMEOUT` seconds (a hang is a failure);
-* the folder holds nothing new afterwards (no partial output, no temporary file left behind).
+* the folder holds nothing new afterwards (no partial output, no temporary file left behind), and
+  no file descriptor is left open (netCDF-C kept one per damaged file it failed to open).
 
 Outcomes are counted per target in :data:`COUNTS` so that a run can report how many inputs each reader
 saw and how they ended.
@@ -91,6 +92,9 @@ class Target:
     call: Callable[[Path, Seed], Any]
     seeds: list[Seed]
     kind: str = "text"
+    #: run before each input, outside the checks: state a reader may legitimately hold (SPICE keeps
+    #: loaded kernel files open) is set up here so that it does not count as a leaked descriptor
+    prepare: Callable[[Seed], None] | None = None
 
 
 # --- edits ------------------------------------------------------------------------------------------
@@ -328,6 +332,14 @@ def _alarm(signum, frame):  # noqa: ARG001
     raise Hang(f"no answer within {TIMEOUT} s")
 
 
+def _open_fds() -> int:
+    """Open file descriptors of this process (Linux; 0 elsewhere, which disables the check)."""
+    try:
+        return len(os.listdir("/proc/self/fd"))
+    except OSError:
+        return 0
+
+
 def _where(err: BaseException) -> str:
     """The innermost lunarmap (or test) frame of a traceback: file:line function."""
     import traceback
@@ -348,6 +360,9 @@ def check_input(target: Target, seed: Seed, data: bytes, folder: Path) -> str:
     path = folder / f"input{_SERIAL[0]}{seed.suffix}"   # a new name each time: libraries cache by name
     path.write_bytes(data)
     before = sorted(os.listdir(folder))
+    if target.prepare is not None:
+        target.prepare(seed)
+    fds = _open_fds()
     old = signal.signal(signal.SIGALRM, _alarm)
     signal.setitimer(signal.ITIMER_REAL, TIMEOUT)
     try:
@@ -370,6 +385,8 @@ def check_input(target: Target, seed: Seed, data: bytes, folder: Path) -> str:
     after = sorted(os.listdir(folder))
     if after != before:
         raise AssertionError(f"{target.name}: files left behind: {sorted(set(after) - set(before))}")
+    if _open_fds() > fds:
+        raise AssertionError(f"{target.name}: {_open_fds() - fds} file descriptor(s) left open by input of {seed.name}")
     COUNTS[target.name][outcome] += 1
     return outcome
 

@@ -231,3 +231,33 @@ def test_isd_json_cut_anywhere_is_named(sim_mission, tmp_path):
         path.write_text(json.dumps({k: v for k, v in doc.items() if k != key}))
         with pytest.raises(IsdFormatError, match=key):
             ImageSupport.read_json(path)
+
+
+def test_damaged_netcdf_files_leave_no_open_descriptor(netcdf_files, tmp_path):
+    """netCDF-C / HDF5 kept the descriptor of every damaged file it failed to open (the fuzzing run had
+    ~500 open when it was noticed); the readers now open from memory."""
+    import os
+    import random
+
+    read, error = _readers()["network"]
+    raw = netcdf_files["network"].read_bytes()
+    rng = random.Random(1)
+
+    def open_fds() -> int:
+        return len(os.listdir("/proc/self/fd"))
+
+    read(netcdf_files["network"])
+    before, failed = open_fds(), 0
+    for k in range(60):
+        data = bytearray(raw)
+        for _ in range(4):
+            data[rng.randrange(len(data))] = rng.randrange(256)
+        p = tmp_path / f"d{k}.nc"
+        p.write_bytes(bytes(data) if k % 2 else raw[: rng.randrange(len(raw))])
+        try:
+            read(p)
+        except error:
+            failed += 1
+        p.unlink()
+    assert failed > 20                       # the damage was real
+    assert open_fds() == before
