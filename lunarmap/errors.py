@@ -354,3 +354,19 @@ class QualityControlInputError(QualityControlError, AdjustmentInputError):
 class VarianceComponentError(QualityControlError, AdjustmentInputError):
     """A group of observations has too little redundancy for its variance component to be estimated
     (the message names the group and its redundancy)."""
+
+
+# --- Reliability (issue 15): named errors for what fuzzing the readers found ---
+
+class LabelKeywordError(LabelError, KeyError):
+    """A label lacks a keyword or group that was asked for; the message names the label file and the keyword path."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0]) if self.args else ""
+
+
+class TiePointFormatError(InvalidInputError):
+    """A tie-point table file is unreadable or is not a tie-point table (missing variable, bad index, NaN)."""
+
+
+__all__ += ["LabelKeywordError", "TiePointFormatError"]

@@ -4,6 +4,11 @@ Tests marked ``shared`` read the real kernel sets in ``../shared/data/kernels``
 (beside the checkout). They are skipped, with the reason shown, when that folder
 is absent; on CI it is present, and ``LUNARMAP_REQUIRE_SHARED=1`` (set by
 ``.ci/run``) turns a missing folder into a failure instead of a silent skip.
+
+Likewise for capabilities that have a fallback: without numba lunarmap runs its numpy paths and
+without cvxopt another sparse Cholesky, so tests of the compiled kernels would skip and the rest
+pass. :func:`require` skips such a test locally but fails it when ``LUNARMAP_STRICT=1`` (set by
+``.ci/run`` on CI), where every compiled backend and optional extra must be present.
 """
 
 from __future__ import annotations
@@ -15,6 +20,18 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_KERNELS = Path(os.environ.get("LUNARMAP_SHARED_KERNELS", ROOT.parent / "shared" / "data" / "kernels"))
+
+
+#: On CI a missing optional capability fails the tests that need it instead of skipping them.
+STRICT = os.environ.get("LUNARMAP_STRICT") == "1"
+
+
+def require(present: bool, what: str) -> None:
+    """Skip the calling test when ``what`` is not ``present``; fail instead under ``LUNARMAP_STRICT=1``."""
+    if not present:
+        if STRICT:
+            pytest.fail(f"{what} is required on CI (LUNARMAP_STRICT=1) but missing")
+        pytest.skip(f"{what} is missing")
 
 
 def shared_set(name: str) -> Path:

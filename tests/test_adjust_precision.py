@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from lunarmap.adjust import SolverOptions, solve
+from conftest import require
 from blockhelp import frame_case
 from lunarmap.adjust.normal import AdjustmentState, image_residuals as _image_residuals, prior_terms as _prior_terms
 
@@ -103,8 +104,7 @@ def test_sparse_precision_matches_dense_method_with_navigation_terms():
     from lunarmap.adjust.precision import posterior_precision
     from lunarmap.adjust.schur import HAVE_COMPILED
 
-    if not HAVE_COMPILED:
-        pytest.skip("numba not installed")
+    require(HAVE_COMPILED, "numba (the compiled adjustment kernels)")
     pb = frame_case(orbits=3, per_orbit=6, points=500, seed=9).problem
     res = solve(pb, SolverOptions(ftol=1e-10))
     a = posterior_precision(res, method="sparse", redundancy=True, inverse_method="supernodal")

@@ -117,7 +117,24 @@ def test_from_interior() -> None:
     assert isinstance(distortion_from_interior(frame_interior(None)), NoDistortion)
 
 
-def test_shapes_broadcast() -> None:
-    model = MODELS["radial"]
-    ux, uy = model.distort(np.zeros((2, 3)), 1.0)
-    assert ux.shape == uy.shape == (2, 3)
+@pytest.mark.parametrize("name", sorted(MODELS))
+def test_broadcast_arrays_equal_point_by_point_values(name: str) -> None:
+    """Inputs of different shapes broadcast, and every element equals the model at that one point."""
+    model = MODELS[name]
+    x = np.array([[-12.0, 0.0, 3.5], [7.25, -0.5, 15.0]])          # (2, 3)
+    y = np.array([4.0, -9.0, 0.25])                                   # (3,): broadcasts along the rows
+    for fn in (model.distort, model.undistort):
+        ux, uy = fn(x, y)
+        assert ux.shape == uy.shape == (2, 3)
+        for i in range(2):
+            for j in range(3):
+                px, py = fn(float(x[i, j]), float(y[j]))
+                assert np.shape(px) == () and (ux[i, j], uy[i, j]) == (px, py)
+    jac = model.undistort_jacobian(x, y)
+    assert jac.shape == (2, 3, 2, 2)
+    np.testing.assert_array_equal(jac[1, 2], model.undistort_jacobian(15.0, 0.25))
+    # a scalar against an array broadcasts too, and the arrays passed in are not modified
+    x0 = x.copy()
+    ux, uy = model.distort(x, 1.0)
+    np.testing.assert_array_equal(x, x0)
+    np.testing.assert_array_equal(ux[0], model.distort(x[0], np.ones(3))[0])

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import threading
 from pathlib import Path
 
 import pytest
@@ -12,6 +11,7 @@ import spiceypy
 from lunarmap.errors import KernelError, MissingKernelError
 from lunarmap.spice import KernelSet, clear, ensure_loaded, kernels, loaded_kernel_set
 from lunarmap.spice.kernelset import parse_text_kernel_data
+from threadhelp import ThreadFailure, in_threads
 
 
 def _text_kernel(path: Path, body: str) -> Path:
@@ -94,22 +94,28 @@ def test_nested_contexts_restore_resident_set(tmp_path):
 
 def test_threads_each_see_their_own_set(tmp_path):
     sets = [KernelSet.from_files([_text_kernel(tmp_path / f"k{i}.tpc", f"LUNARMAP_Y = {i}")]) for i in range(4)]
-    errors: list[str] = []
 
-    def work(i: int) -> None:
+    def work(i: int) -> list[float]:
+        seen = []
         for _ in range(25):
             with kernels(sets[i]):
-                v = spiceypy.gdpool("LUNARMAP_Y", 0, 1)[0]
-                if v != i:
-                    errors.append(f"thread {i} saw {v}")
+                seen.append(spiceypy.gdpool("LUNARMAP_Y", 0, 1)[0])
+        return seen
 
-    threads = [threading.Thread(target=work, args=(i,)) for i in range(4)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
-    assert errors == []
+    # in_threads re-raises a worker thread's exception: a crashing thread fails the test
+    assert in_threads(work, 4) == [[float(i)] * 25 for i in range(4)]
     assert spiceypy.ktotal("ALL") == 0
+
+
+def test_thread_helper_fails_when_a_thread_raises():
+    def work(i: int) -> int:
+        if i == 2:
+            raise KeyError("boom")
+        return i
+
+    with pytest.raises(ThreadFailure, match="thread 2 raised KeyError") as info:
+        in_threads(work, 4)
+    assert isinstance(info.value.__cause__, KeyError)
 
 
 def test_kernel_set_pickles_as_paths(tmp_path):

@@ -60,9 +60,30 @@ def test_nac_like_matching_error_at_10_deg_is_below_a_tenth_pixel(pair10, nac_sc
     assert rms <= 0.1, rms
     # Prediction at height 0 is off by the relief parallax: matching must have removed it.
     assert _rms(m.prediction.line[ok] - (m.line2[ok] - dl), m.prediction.sample[ok] - (m.sample2[ok] - ds)) > 1.0
-    # LSM's own sigma is of the right size (within a factor 3 of the true scatter).
-    sig = np.sqrt(np.mean(m.sigma_line[ok] ** 2 + m.sigma_sample[ok] ** 2))
-    assert rms / 3 < sig < 3 * rms
+    # LSM's own sigma describes the noise-driven error: across the parallax (line) the errors divided by
+    # each match's sigma have RMS ~1 (measured 0.92). Along the parallax (sample) the relief inside the
+    # window adds a systematic part that no per-match sigma of an affine model can know (measured 3.1);
+    # on flat terrain both directions are ~1 (test_lsm_sigma_predicts_the_error_on_flat_terrain).
+    z_line = np.sqrt(np.mean((dl / m.sigma_line[ok]) ** 2))
+    assert 0.75 < z_line < 1.3, z_line
+
+
+def test_lsm_sigma_predicts_the_error_on_flat_terrain(nac_scene) -> None:
+    """Without relief the matching error is noise only: errors / sigma have RMS ~1 in both directions."""
+    dtm, alb = nac_scene
+    flat = dtm * 0.0
+    c1, c2 = stereo_pair("linescan", 10.0, n_lines=200, n_samples=200)
+    i1 = render_image(c1, flat, alb, noise_sigma=2.0, sun="eo", seed=1).values
+    i2 = render_image(c2, flat, alb, noise_sigma=2.0, sun="eo", seed=2).values
+    pts = foerstner(i1, cell=12, per_cell=1)
+    m = match_points(i1, i2, c1, c2, pts.line, pts.sample, height=0.0, params=MatchParams(search=12.0))
+    ok = m.ok
+    assert ok.sum() >= 150
+    dl, ds = matching_errors(c1, c2, m.line1[ok], m.sample1[ok], m.line2[ok], m.sample2[ok], flat)
+    z_line = np.sqrt(np.mean((dl / m.sigma_line[ok]) ** 2))
+    z_sample = np.sqrt(np.mean((ds / m.sigma_sample[ok]) ** 2))
+    # measured 1.13 / 1.08 (seeds 1, 2); with ~200 matches the RMS itself scatters by ~5 %
+    assert 0.8 < z_line < 1.35 and 0.8 < z_sample < 1.35, (z_line, z_sample)
 
 
 def _z_rms(m, dl, ds) -> np.ndarray:
@@ -255,7 +276,53 @@ def test_images_without_overlap_warn_and_return_empty(three_images, nac_scene) -
         find_tiepoints(imgs, {name: cams[name]})
 
 
-def test_status_codes_cover_every_point(pair10) -> None:
-    m = pair10[4]
-    assert set(np.unique(m.status)) <= set(STATUS.values())
-    assert np.all(np.isnan(m.line2[~m.ok])) and np.all(np.isfinite(m.line2[m.ok]))
+def test_status_codes_say_why_a_point_did_not_match(pair10) -> None:
+    """Each failure is constructed, and each point gets the code of its own failure (and only failures
+    get one): predicted outside image 2, no texture to correlate (NaN), another texture (noise), LSM
+    stopped before converging, a displaced block of image 2 that RANSAC rejects."""
+    from lunarmap.matching.tiepoints import match_pair
+
+    c1, c2, i1, i2, m0 = pair10
+    l1, s1 = m0.line1, m0.sample1
+    code = {v: k for k, v in STATUS.items()}
+
+    def counts(status):
+        return {code[k]: int(np.sum(status == k)) for k in np.unique(status)}
+
+    # untouched images: most points match, and a match has coordinates exactly when it is ok
+    assert np.mean(m0.ok) > 0.85
+    assert np.all(np.isfinite(m0.line2[m0.ok])) and np.all(np.isnan(m0.line2[~m0.ok]))
+    assert np.all(np.isnan(m0.sigma_line[~m0.ok])) and np.all(m0.sigma_line[m0.ok] > 0)
+
+    params = MatchParams(search=12.0)
+    with pytest.warns(NoOverlapWarning):
+        out = match_points(i1, i2, c1, c2, np.full(5, -300.0), np.linspace(20, 180, 5), height=0.0, params=params)
+    assert counts(out.status) == {"outside": 5}
+
+    top = l1 < 80                                   # points whose conjugates lie in the top 100 lines of image 2
+    blank = i2.copy()
+    blank[:100] = np.nan
+    m = match_points(i1, blank, c1, c2, l1, s1, height=0.0, params=params)
+    assert counts(m.status[top]) == {"ncc_failed": int(top.sum())}
+
+    noise = i2.copy()
+    noise[:100] = np.random.default_rng(0).uniform(0, 255, (100, noise.shape[1]))
+    m = match_points(i1, noise, c1, c2, l1, s1, height=0.0, params=params)
+    c = counts(m.status[top])
+    assert "ok" not in c and c.get("low_correlation", 0) >= 0.7 * top.sum(), c
+
+    m = match_points(i1, i2, c1, c2, l1, s1, height=0.0, params=MatchParams(search=12.0, lsm_iterations=1))
+    c = counts(m.status)
+    assert "ok" not in c and c["lsm_failed"] >= 0.95 * l1.size, c
+
+    shifted = i2.copy()
+    shifted[60:120, 60:120] = i2[60:120, 52:112]    # a block of image 2 moved by 8 samples
+    tp = TiePointParams()
+    tp.match.search = 12.0
+    from lunarmap.matching.interest import InterestPoints
+
+    pm = match_pair(i1, shifted, c1, c2, InterestPoints(l1, s1, np.ones_like(l1)), 0.0, tp, "shifted")
+    block = (l1 > 68) & (l1 < 112) & (s1 > 76) & (s1 < 112)
+    assert block.sum() >= 6
+    assert np.mean(pm.status[block] == STATUS["outlier"]) >= 0.6, counts(pm.status[block])
+    assert np.mean(pm.status[~block] == STATUS["outlier"]) <= 0.06, counts(pm.status[~block])

@@ -215,19 +215,37 @@ def test_rpc_txt_round_trip_and_gdal_pixel_convention(tmp_path):
     assert back.n_lines == 52224 and back.radius == m.radius
 
 
+def _edit(text: str, old: str, new: str) -> str:
+    """``text`` with ``old`` replaced once; fails if ``old`` is not there (an edit that did nothing tests nothing)."""
+    assert text.count(old) == 1, f"{old!r} is not in the file exactly once"
+    return text.replace(old, new)
+
+
 def test_rpc_txt_reads_geoeye_style_values_and_rejects_missing_keywords(tmp_path):
     m = _projective_model()
     path = write_rpc_txt(m, tmp_path / "a_RPC.TXT")
-    text = path.read_text().replace("LINE_OFF: 26111.5", "LINE_OFF: +026111.50 pixels")
-    (tmp_path / "b_RPC.TXT").write_text(text)
+    text = path.read_text()
+    # GeoEye spelling (sign, zero padding, unit) of a *different* value, so reading it is seen
+    (tmp_path / "b_RPC.TXT").write_text(_edit(text, "LINE_OFF: 26111.5\n", "LINE_OFF: +026100.25 pixels\n"))
     b = read_rpc_txt(tmp_path / "b_RPC.TXT")
-    assert b.offsets[0] == 26112.0
-    (tmp_path / "c_RPC.TXT").write_text("\n".join(ln for ln in text.splitlines() if "SAMP_DEN_COEFF_7:" not in ln))
+    assert b.offsets[0] == 26100.75 and np.array_equal(b.offsets[1:], m.offsets[1:])
+    lines = [ln for ln in text.splitlines() if not ln.startswith("SAMP_DEN_COEFF_7:")]
+    assert len(lines) == len(text.splitlines()) - 1
+    (tmp_path / "c_RPC.TXT").write_text("\n".join(lines))
     with pytest.raises(RpcFormatError, match="SAMP_DEN_COEFF_7 is missing"):
         read_rpc_txt(tmp_path / "c_RPC.TXT")
-    (tmp_path / "d_RPC.TXT").write_text(text.replace("LAT_SCALE: 0.40000000000000002", "LAT_SCALE: nan"))
+    (tmp_path / "d_RPC.TXT").write_text(_edit(text, "LAT_SCALE: 0.40000000000000002", "LAT_SCALE: nan"))
     with pytest.raises(RpcFormatError, match="LAT_SCALE"):
         read_rpc_txt(tmp_path / "d_RPC.TXT")
+    # the comment lines lunarmap writes are checked too (fuzzing found a raw ValueError / IndexError here)
+    for k, (old, new) in enumerate([("# lunarmap reference radius (m): 1737400", "# lunarmap reference radius (m): 1.2.3"),
+                                    ("# lunarmap image size (lines samples): 52224 5064",
+                                     "# lunarmap image size (lines samples): 52224")]):
+        bad = tmp_path / f"e{k}_RPC.TXT"
+        bad.write_text(_edit(text, old, new))
+        with pytest.raises(RpcFormatError, match="comment line"):
+            read_rpc_txt(bad)
+        bad.unlink()
     with pytest.raises(FileNotFoundError):
         read_rpc_txt(tmp_path / "none.txt")
     assert sorted(os.listdir(tmp_path)) == ["a_RPC.TXT", "b_RPC.TXT", "c_RPC.TXT", "d_RPC.TXT"]

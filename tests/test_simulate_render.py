@@ -52,13 +52,48 @@ def test_crater_profile_matches_morphometry() -> None:
     assert np.all(np.abs(rr[h == np.max(h)] - d / 2) < 1.0)
 
 
-def test_synthetic_dtm_and_albedo_shapes_and_ranges() -> None:
-    dtm = synthetic_dtm(LON0, LAT0, 200.0, 2.0, relief=3.0, seed=4)
-    assert dtm.dims == ("lat", "lon") and np.all(np.isfinite(dtm.values))
+def test_synthetic_dtm_relief_and_albedo() -> None:
+    # the rolling terrain alone (no craters): heights of standard deviation `relief` about zero,
+    # linear in `relief` for one seed, and no wavelength much shorter than `wavelength`
+    a = synthetic_dtm(LON0, LAT0, 200.0, 2.0, relief=3.0, crater_density=0.0, seed=4)
+    b = synthetic_dtm(LON0, LAT0, 200.0, 2.0, relief=6.0, crater_density=0.0, seed=4)
+    assert a.dims == ("lat", "lon") and np.all(np.isfinite(a.values))
+    assert float(a.std()) == pytest.approx(3.0, rel=1e-9) and abs(float(a.mean())) < 1e-9
+    np.testing.assert_allclose(b.values, 2.0 * a.values, rtol=1e-12)
+    k = np.hypot(np.fft.fftfreq(a.shape[0], 2.0)[:, None], np.fft.rfftfreq(a.shape[1], 2.0)[None, :])
+    for dtm, shortest in ((a, 40.0), (synthetic_dtm(LON0, LAT0, 200.0, 2.0, relief=3.0, wavelength=80.0,
+                                                    crater_density=0.0, seed=4), 80.0)):
+        power = np.abs(np.fft.rfft2(dtm.values)) ** 2
+        # the Gaussian roll-off below `wavelength` (default 20 spacings): measured 1e-4 / 2e-7 (40 m)
+        assert power[k > 2.0 / shortest].sum() < 1e-3 * power.sum()
+        assert power[k > 3.0 / shortest].sum() < 1e-5 * power.sum()
+    # craters dig bowls: floors at -0.16 D below the terrain for D >= d_min = 16 m, so below -2.5 m here
+    c = synthetic_dtm(LON0, LAT0, 200.0, 2.0, relief=0.0, crater_density=0.05, seed=4)
+    assert float(c.min()) < -0.16 * 16.0 + 0.1
     alb = synthetic_albedo(LON0, LAT0, 200.0, 0.5, feature_size=1.0)
     assert float(alb.min()) > 0 and float(alb.max()) < 1
     with pytest.raises(InvalidInputError, match="feature_size"):
         synthetic_albedo(LON0, LAT0, 200.0, 0.5, feature_size=0.6)
+
+
+def test_rendered_relief_shows_its_parallax() -> None:
+    """A mark on top of a 20 m hill, seen 30 deg off nadir, appears where the camera projects the hilltop,
+    ~23 px away from where it would appear without the hill: the renderer intersects the DTM."""
+    lat, lon, north, east = local_grid(LON0, LAT0, 400.0, 0.25)
+    hill = 20.0 * np.exp(-0.5 * (north[:, None] ** 2 + east[None, :] ** 2) / 40.0 ** 2)
+    dtm = xr.DataArray(hill, dims=("lat", "lon"), coords={"lat": lat, "lon": lon})
+    mark = 0.3 + 0.5 * np.exp(-0.5 * (north[:, None] ** 2 + east[None, :] ** 2) / 1.5 ** 2)
+    ortho = xr.DataArray(mark, dims=("lat", "lon"), coords={"lat": lat, "lon": lon})
+    cam = pointed_camera("linescan", LON0, LAT0, 30.0, n_lines=96, n_samples=96)
+    img = render_image(cam, dtm, ortho, supersample=3).values
+    w = np.clip(img - 255.0 * 0.3 * 1.02, 0.0, None)           # the mark above the background
+    li, si = np.meshgrid(np.arange(96) + 0.5, np.arange(96) + 0.5, indexing="ij")
+    seen = np.array([np.sum(w * li), np.sum(w * si)]) / np.sum(w)
+    top = lonlat_height_to_xyz(LON0, LAT0, 20.0)
+    on_hill = np.array(cam.ground_to_image(top), dtype=float).ravel()
+    no_hill = np.array(cam.ground_to_image(lonlat_height_to_xyz(LON0, LAT0, 0.0)), dtype=float).ravel()
+    assert np.hypot(*(on_hill - no_hill)) > 15.0              # the parallax the hill must produce
+    assert np.hypot(*(seen - on_hill)) < 0.2, (seen, on_hill, no_hill)
 
 
 def test_stereo_pair_has_requested_convergence() -> None:

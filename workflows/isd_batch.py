@@ -344,6 +344,8 @@ def read_image_list(path: PathLike) -> list[tuple[str, str]]:
         text = p.read_text()
     except OSError as err:
         raise InvalidInputError(f"cannot read image list {p}: {err.strerror or err}") from err
+    except UnicodeDecodeError as err:
+        raise InvalidInputError(f"image list {p} is not text in the locale's encoding: {err}") from err
     base = p.resolve().parent
     images = []
     for n, line in enumerate(text.splitlines(), 1):

@@ -55,13 +55,16 @@ def read_bal(path: str | os.PathLike, with_meta: bool = True) -> BALData:
     Raises
     ------
     AdjustmentInputError
-        Truncated file, non-numeric tokens, indices out of range or NaN values (the message names the file).
+        Truncated file, non-numeric tokens, indices out of range or NaN values, a sidecar that is not a
+        JSON object (the message names the file).
     """
     path = str(path)
     with open(path, "rb") as fh:
         tok = fh.read().split()
     try:
         n_cam, n_pt, n_obs = int(tok[0]), int(tok[1]), int(tok[2])
+        if min(n_cam, n_pt, n_obs) < 0:
+            raise AdjustmentInputError(f"{path}: negative count in the BAL header ({n_cam} {n_pt} {n_obs})")
         need = 3 + 4 * n_obs + 9 * n_cam + 3 * n_pt
         if len(tok) < need:
             raise AdjustmentInputError(f"{path}: truncated BAL file ({len(tok)} numbers, header implies {need})")
@@ -75,14 +78,21 @@ def read_bal(path: str | os.PathLike, with_meta: bool = True) -> BALData:
     for name, a in (("observations", o), ("cameras", cams), ("points", pts)):
         if not np.all(np.isfinite(a)):
             raise AdjustmentInputError(f"{path}: non-finite values among the {name}")
+    if not np.all(o[:, :2] == np.round(o[:, :2])):
+        raise AdjustmentInputError(f"{path}: camera or point index is not an integer")
     ci, pi = o[:, 0].astype(np.int64), o[:, 1].astype(np.int64)
     if n_obs and (ci.min() < 0 or ci.max() >= n_cam or pi.min() < 0 or pi.max() >= n_pt):
         raise AdjustmentInputError(f"{path}: camera or point index out of range")
     meta = {}
     mp = _stem(path) + ".meta.json"
     if with_meta and os.path.exists(mp):
-        with open(mp) as fh:
-            meta = json.load(fh)
+        try:
+            with open(mp, encoding="utf-8") as fh:
+                meta = json.load(fh)
+        except ValueError as exc:  # JSONDecodeError and UnicodeDecodeError both are
+            raise AdjustmentInputError(f"{mp}: the BAL sidecar is not JSON ({exc})") from exc
+        if not isinstance(meta, dict):
+            raise AdjustmentInputError(f"{mp}: the BAL sidecar must hold a JSON object, got {type(meta).__name__}")
     return BALData(cams, pts, ci, pi, o[:, 2:4].copy(), meta)
 
 
@@ -113,8 +123,15 @@ def bal_to_problem(data: BALData, control: NDArray | None = None, control_sigma:
         Sigma of the image coordinates, pixels (1 reproduces BAL's unweighted cost).
     """
     if control is None:
-        control = np.asarray(data.meta.get("control_points", []), dtype=np.int64)
-    control = np.asarray(control, dtype=np.int64)
+        control = data.meta.get("control_points", [])
+    try:
+        control = np.asarray(control, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise AdjustmentInputError(f"control points must be a list of point indices, got {control!r:.80}") from None
+    if not np.all(control == np.round(control)) or (control.size and (control.min() < 0
+                                                                      or control.max() >= len(data.points))):
+        raise AdjustmentInputError(f"control point indices must be integers in [0, {len(data.points)})")
+    control = control.astype(np.int64)
     R0 = rotvec_to_matrix(data.cameras[:, 0:3])
     C = -rotate(-data.cameras[:, 0:3], data.cameras[:, 3:6])
     model = FrameModel(R0, data.cameras[:, 6], data.cameras[:, 7], data.cameras[:, 8])

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 from typing import Callable
 
+import threading
+
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
@@ -45,6 +47,11 @@ def available_backends() -> list[str]:
     except ImportError:
         pass
     return out + ["splu", "dense"]
+
+
+#: Guards the lazy creation of a Factorizer's CHOLMOD state. The state itself (symbolic analysis and
+#: factor, reused between calls) belongs to one solve: a Factorizer is not shared between threads.
+_CVX_LOCK = threading.RLock()
 
 
 class _CvxoptCholmod:
@@ -173,8 +180,9 @@ class Factorizer:
         if backend == "auto":
             backend = "dense" if S.shape[0] <= 600 else available_backends()[0]
         if backend == "cholmod":
-            if self._cvx is None:
-                self._cvx = _CvxoptCholmod()
+            with _CVX_LOCK:   # one CHOLMOD state per Factorizer, created once
+                if self._cvx is None:
+                    self._cvx = _CvxoptCholmod()
             fn = self._cvx
         else:
             fn = {"cholespy": _cholespy, "splu": _splu, "dense": _dense}[backend]

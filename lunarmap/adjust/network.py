@@ -42,6 +42,8 @@ from ..camera.geodesy import xyz_to_lonlat_height
 from ..camera.shape import MOON_RADIUS
 from ..atomic import atomic_write
 from ..errors import NetworkFormatError
+from ..matching.tiepoints import check_tiepoint_table
+from ..ncread import load_netcdf
 from .problem import BundleProblem, ImageObservations, PointPriors
 
 __all__ = ["POINT_TYPES", "ControlNetwork", "write_network", "read_network", "network_to_dataset",
@@ -51,6 +53,23 @@ __all__ = ["POINT_TYPES", "ControlNetwork", "write_network", "read_network", "ne
 POINT_TYPES = ("tie", "control", "check")
 _CONVENTION = "lunarmap_control_network"
 _VERSION = 1
+# variable -> dimensions of the file layout (module docstring)
+_LAYOUT = {"point_id": ("point",), "point_type": ("point",), "xyz": ("point", "axis"),
+           "measure_point": ("measure",), "measure_image": ("measure",), "line": ("measure",),
+           "sample": ("measure",), "sigma_line": ("measure",), "sigma_sample": ("measure",),
+           "image_id": ("image",)}
+_OPTIONAL = {"image_name": ("image",), "xyz_cov": ("point", "axis", "axis2")}
+
+
+def _index_array(values: object, name: str) -> NDArray[np.int64]:
+    """Integer indices; refuses NaN and fractions instead of casting them to garbage."""
+    a = np.asarray(values)
+    if a.dtype.kind == "f":
+        if not np.all(np.isfinite(a)) or not np.all(a == np.round(a)):
+            raise NetworkFormatError(f"control network: {name} holds non-integer indices")
+    elif a.size and a.dtype.kind not in "iub":
+        raise NetworkFormatError(f"control network: {name} must hold integer indices, got {a.dtype}")
+    return a.astype(np.int64)
 
 
 @dataclass
@@ -77,18 +96,30 @@ class ControlNetwork:
     attrs: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        try:
+            self._convert()
+        except (ValueError, TypeError, OverflowError) as err:  # shapes or types numpy cannot use
+            raise NetworkFormatError(f"control network: unusable arrays ({err})") from None
+        self._check()
+
+    def _convert(self) -> None:
         self.point_id = np.asarray(self.point_id).astype(str)
         self.point_type = np.asarray(self.point_type).astype(str)
         self.xyz = np.asarray(self.xyz, float).reshape(-1, 3)
-        self.measure_point = np.asarray(self.measure_point, np.int64)
-        self.measure_image = np.asarray(self.measure_image, np.int64)
+        self.measure_point = _index_array(self.measure_point, "measure_point")
+        self.measure_image = _index_array(self.measure_image, "measure_image")
         self.line_sample = np.asarray(self.line_sample, float).reshape(-1, 2)
         self.image_id = np.asarray(self.image_id).astype(str)
         self.image_name = self.image_id.copy() if self.image_name is None else np.asarray(self.image_name).astype(str)
-        n_pt, n_m, n_img = self.point_id.size, self.measure_point.size, self.image_id.size
+        n_m = self.measure_point.size
         self.measure_sigma = np.array(np.broadcast_to(np.asarray(self.measure_sigma, float).reshape(-1, 1)
                                                       if np.ndim(self.measure_sigma) == 1
                                                       else np.asarray(self.measure_sigma, float), (n_m, 2)))
+        if self.xyz_cov is not None:
+            self.xyz_cov = np.asarray(self.xyz_cov, float).reshape(self.point_id.size, 3, 3)
+
+    def _check(self) -> None:
+        n_pt, n_m, n_img = self.point_id.size, self.measure_point.size, self.image_id.size
         checks = [
             (self.point_type.shape == (n_pt,), f"point_type has {self.point_type.size} values for {n_pt} points"),
             (self.xyz.shape == (n_pt, 3), f"xyz has {self.xyz.shape[0]} rows for {n_pt} points"),
@@ -112,8 +143,6 @@ class ControlNetwork:
         ref = self.point_type != "tie"
         if not np.all(np.isfinite(self.xyz[ref])):
             raise NetworkFormatError("control network: control/check points need finite xyz")
-        if self.xyz_cov is not None:
-            self.xyz_cov = np.asarray(self.xyz_cov, float).reshape(n_pt, 3, 3)
         ctl = self.point_type == "control"
         if ctl.any() and (self.xyz_cov is None or not np.all(np.isfinite(self.xyz_cov[ctl]))):
             raise NetworkFormatError("control network: control points need a finite xyz_cov")
@@ -204,12 +233,7 @@ def network_from_tiepoints(tiepoints: xr.Dataset, prefix: str = "tp", radius: fl
     NetworkFormatError
         The dataset is not a tie-point table (missing variables, image index out of range).
     """
-    need = ("point_id", "image_id", "line", "sample", "sigma_line", "sigma_sample")
-    if not isinstance(tiepoints, xr.Dataset):
-        raise NetworkFormatError(f"expected the tie-point Dataset of find_tiepoints, got {type(tiepoints).__name__}")
-    missing = [v for v in need if v not in tiepoints]
-    if missing or "image" not in tiepoints.coords:
-        raise NetworkFormatError(f"not a tie-point table: missing {', '.join(missing + (['image'] if 'image' not in tiepoints.coords else []))}")
+    check_tiepoint_table(tiepoints, NetworkFormatError)
     ids, inverse = np.unique(tiepoints["point_id"].values.astype(np.int64), return_inverse=True)
     n_pt = ids.size
     return ControlNetwork(
@@ -305,16 +329,33 @@ def network_from_dataset(ds: xr.Dataset) -> ControlNetwork:
     """Inverse of :func:`network_to_dataset`; raises :class:`~lunarmap.errors.NetworkFormatError`."""
     if ds.attrs.get("Conventions") != _CONVENTION:
         raise NetworkFormatError(f"not a lunarmap control network (Conventions={ds.attrs.get('Conventions')!r})")
-    if int(ds.attrs.get("version", -1)) > _VERSION:
+    try:
+        version = int(ds.attrs.get("version", -1))
+    except (TypeError, ValueError):
+        raise NetworkFormatError(f"control network version {ds.attrs.get('version')!r} is not an integer") from None
+    if version > _VERSION:
         raise NetworkFormatError(f"control network version {ds.attrs.get('version')} is newer than {_VERSION}")
-    need = ("point_id", "point_type", "xyz", "measure_point", "measure_image", "line", "sample",
-            "sigma_line", "sigma_sample", "image_id")
-    missing = [v for v in need if v not in ds]
+    missing = [v for v in _LAYOUT if v not in ds]
     if missing:
         raise NetworkFormatError(f"control network: missing variable(s) {', '.join(missing)}")
-    codes = ds["point_type"].values.astype(np.int64)
+    for name, dims in {**_LAYOUT, **_OPTIONAL}.items():
+        if name in ds and ds[name].dims != dims:
+            raise NetworkFormatError(f"control network: {name} has dimensions {ds[name].dims}, expected {dims}")
+    for name in ("axis", "axis2"):
+        if ds.sizes.get(name, 3) != 3:
+            raise NetworkFormatError(f"control network: dimension {name} has length {ds.sizes[name]}, expected 3")
+    for name in ("xyz", "line", "sample", "sigma_line", "sigma_sample", "xyz_cov"):
+        if name in ds and ds[name].dtype.kind not in "iuf":
+            raise NetworkFormatError(f"control network: {name} must be numeric, got {ds[name].dtype}")
+    codes = _index_array(ds["point_type"].values, "point_type")
     if codes.size and (codes.min() < 0 or codes.max() >= len(POINT_TYPES)):
         raise NetworkFormatError(f"control network: point_type codes must be 0..{len(POINT_TYPES) - 1}")
+    try:
+        radius = float(ds.attrs.get("radius", MOON_RADIUS))
+    except (TypeError, ValueError):
+        radius = float("nan")
+    if not (np.isfinite(radius) and radius > 0):
+        raise NetworkFormatError(f"control network: radius {ds.attrs.get('radius')!r} is not a positive number")
     keep = ("Conventions", "version", "radius", "body")
     return ControlNetwork(
         point_id=ds["point_id"].values, point_type=np.array(POINT_TYPES, dtype=object)[codes],
@@ -324,7 +365,7 @@ def network_from_dataset(ds: xr.Dataset) -> ControlNetwork:
         image_id=ds["image_id"].values,
         image_name=ds["image_name"].values if "image_name" in ds else None,
         xyz_cov=ds["xyz_cov"].values if "xyz_cov" in ds else None,
-        radius=float(ds.attrs.get("radius", MOON_RADIUS)), body=str(ds.attrs.get("body", "MOON")),
+        radius=radius, body=str(ds.attrs.get("body", "MOON")),
         attrs={k: v for k, v in ds.attrs.items() if k not in keep})
 
 
@@ -354,8 +395,8 @@ def read_network(path: str | os.PathLike) -> ControlNetwork:
     NetworkFormatError
         Not a lunarmap control network, or an inconsistent one.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"control network {path} does not exist")
-    with xr.open_dataset(path, engine="netcdf4") as ds:
-        return network_from_dataset(ds.load())
+    ds = load_netcdf(path, NetworkFormatError, "control network")
+    try:
+        return network_from_dataset(ds)
+    except NetworkFormatError as err:   # name the file: the dataset does not know where it came from
+        raise NetworkFormatError(f"{path}: {err}") from None

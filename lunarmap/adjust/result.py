@@ -7,6 +7,7 @@ posterior covariances (:mod:`.precision`).
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -15,6 +16,10 @@ import xarray as xr
 from numpy.typing import NDArray
 
 __all__ = ["AdjustmentResult"]
+
+
+#: Guards the lazy posterior precision of every result (a module lock: results must pickle).
+_PRECISION_LOCK = threading.RLock()
 
 
 @dataclass
@@ -107,7 +112,9 @@ class AdjustmentResult:
         if self._precision is None:
             from .precision import posterior_precision
 
-            self._precision = posterior_precision(self, method=method, redundancy=True)
+            with _PRECISION_LOCK:   # computed once even when threads ask at the same time
+                if self._precision is None:
+                    self._precision = posterior_precision(self, method=method, redundancy=True)
         return self._precision
 
     # --- datasets --------------------------------------------------------

@@ -34,6 +34,7 @@ with central finite differences.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from typing import Any, Sequence
 
@@ -296,6 +297,10 @@ class FrameStack:
         return (pix, jc, jx) if jacobian else (pix, None, None)
 
 
+#: Guards the lazy one-camera FrameStack of every FrameCorrections (microseconds to build).
+_STACK_LOCK = threading.Lock()
+
+
 class FrameCorrections:
     """Six exterior-orientation corrections of a :class:`~lunarmap.camera.FrameCamera` (module docstring).
 
@@ -323,9 +328,13 @@ class FrameCorrections:
         return f"FrameCorrections({self.sensor!r})"
 
     def _one(self) -> FrameStack:
-        if self._stack is None:
-            self._stack = FrameStack([self])
-        return self._stack
+        stack = self._stack
+        if stack is None:
+            with _STACK_LOCK:   # built once (FrameStack is immutable), whichever thread asks first
+                if self._stack is None:
+                    self._stack = FrameStack([self])
+                stack = self._stack
+        return stack
 
     def project(self, params: ArrayLike, xyz: ArrayLike) -> Array:
         p = _params(params, 6, "FrameCorrections")

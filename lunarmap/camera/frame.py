@@ -23,6 +23,7 @@ because our quaternions rotate NAIF instrument-frame vectors.
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import numpy as np
@@ -143,6 +144,9 @@ class _CameraModel:
         self.shape = Shape.moon() if shape is None else shape
         self.distortion = distortion_from_interior(interior)
         self._dtm_cache: tuple[Any, DtmSampler] | None = None
+        # Guards the lazy caches: each is built by one thread while the others wait, and is never
+        # changed after it is published (threads share cameras, e.g. dask's threaded scheduler).
+        self._cache_lock = threading.RLock()
 
     #: Attributes that are caches, rebuilt on demand from the rest of the state.
     _CACHES = ("_table", "_dtm_cache")
@@ -154,7 +158,12 @@ class _CameraModel:
         for k in self._CACHES:
             if k in state:
                 state[k] = None
+        state.pop("_cache_lock", None)   # a lock cannot be pickled; each copy gets its own
         return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._cache_lock = threading.RLock()
 
     # -- to be provided by subclasses -----------------------------------
     def _rays(self, line: Array, sample: Array) -> tuple[Array, Array]:
@@ -233,11 +242,17 @@ class _CameraModel:
     def _sampler(self, dtm: xr.DataArray | DtmSampler) -> DtmSampler:
         if isinstance(dtm, DtmSampler):
             return dtm
-        # Building the sampler copies the grid; cache it for repeated calls on one DTM.
-        if self._dtm_cache is not None and self._dtm_cache[0] is dtm:
-            return self._dtm_cache[1]
-        sampler = DtmSampler(dtm)
-        self._dtm_cache = (dtm, sampler)
+        # Building the sampler copies the grid; cache it for repeated calls on one DTM. The cache is
+        # read once into a local: another thread may replace it (another DTM) between two reads.
+        cached = self._dtm_cache
+        if cached is not None and cached[0] is dtm:
+            return cached[1]
+        with self._cache_lock:
+            cached = self._dtm_cache
+            if cached is not None and cached[0] is dtm:
+                return cached[1]
+            sampler = DtmSampler(dtm)
+            self._dtm_cache = (dtm, sampler)
         return sampler
 
     def image_to_ground(self, line: ArrayLike, sample: ArrayLike, height: ArrayLike = 0.0,

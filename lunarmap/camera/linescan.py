@@ -269,8 +269,16 @@ class LineScanCamera(_CameraModel):
         return lo, hi
 
     def _build_table(self) -> dict[str, object]:
-        if self._table is not None:
+        table = self._table
+        if table is not None:
+            return table
+        with self._cache_lock:   # built once: concurrent first calls wait for the first builder
+            if self._table is None:
+                self._table = self._new_table()
             return self._table
+
+    def _new_table(self) -> dict[str, object]:
+        """The per-line EO table (built once per camera by :meth:`_build_table`)."""
         lo, hi = self._line_range()
         n_nodes = int(np.ceil(hi - lo)) + 1
         step = max(1.0, (hi - lo) / (_TABLE_MAX - 1))
@@ -288,12 +296,13 @@ class LineScanCamera(_CameraModel):
         # Each row holds a node and its forward difference, so a table
         # evaluation is a single gather of 24 contiguous doubles.
         pairs = np.concatenate([table[:-1], np.diff(table, axis=0)], axis=1)
-        self._table = {
+        for a in (table, pairs, coarse_idx, normals, offsets):
+            a.setflags(write=False)   # shared by every thread using the camera: never written after this
+        return {
             "line0": lo, "step": step, "n": n_nodes, "table": table, "pairs": pairs,
             "exact_px": self._table_error_px(lines, pos, rot),
             "coarse_idx": coarse_idx, "normals": normals, "offsets": offsets,
         }
-        return self._table
 
     def _table_error_px(self, lines: Array, pos: Array, rot: Array) -> float:
         """Upper bound (pixels) of the image error of linear table interpolation vs the EO's own.

@@ -24,7 +24,21 @@ _TYPES = {"Double": "f8", "Integer": "i4", "Real": "f4"}
 
 def isis_table_names(label: Label) -> list[str]:
     """Names of the tables described in a cube label."""
-    return [str(t.get("Name", "")) for t in label.all("Table")]
+    return [str(t.get("Name", "")) for t in label.all("Table") if isinstance(t, Label)]
+
+
+def _count(value: Any, what: str, minimum: int) -> int:
+    """A non-negative integer of the table label (``what`` names it), at least ``minimum``."""
+    try:
+        number = float(value)
+        if isinstance(value, bool) or not number.is_integer():
+            raise ValueError
+        out = int(number)
+    except (TypeError, ValueError, OverflowError):
+        raise LabelError(f"{what} {value!r:.60} is not an integer") from None
+    if out < minimum:
+        raise LabelError(f"{what} {out} is less than {minimum}")
+    return out
 
 
 def read_isis_table(path: str | os.PathLike[str], name: str) -> tuple[dict[str, np.ndarray], Label]:
@@ -47,25 +61,44 @@ def read_isis_table(path: str | os.PathLike[str], name: str) -> tuple[dict[str, 
     Raises
     ------
     LabelError
-        No such table, an unsupported field type, or a table extending past the file's end.
+        No such table, a missing or malformed ``StartByte`` / ``Bytes`` / ``Records`` / field, an
+        unsupported field type, or a table extending past the file's end.
     """
     label = load_label(path)
-    tables = [t for t in label.all("Table") if str(t.get("Name", "")) == name]
+    tables = [t for t in label.all("Table") if isinstance(t, Label) and str(t.get("Name", "")) == name]
     if not tables:
         raise LabelError(f"ISIS cube {os.fspath(path)} has no table {name!r} (has: {isis_table_names(label)})")
     t = tables[0]
+    where = f"table {name} of {os.fspath(path)}"
     order = "<" if str(t.get("ByteOrder", "Lsb")) == "Lsb" else ">"
     fields: list[tuple[str, str, int]] = []
     for f in t.all("Field"):
+        if not isinstance(f, Label) or "Name" not in f:
+            raise LabelError(f"{where}: a Field group without a Name")
         ftype = str(f.get("Type", ""))
         if ftype not in _TYPES:
-            raise LabelError(f"table {name} of {os.fspath(path)}: unsupported field type {ftype!r}")
-        fields.append((str(f["Name"]), order + _TYPES[ftype], int(f.get("Size", 1))))
-    dtype = np.dtype([(n, ty, (s,)) if s > 1 else (n, ty) for n, ty, s in fields])
-    start, nbytes, records = int(t["StartByte"]) - 1, int(t["Bytes"]), int(t["Records"])
+            raise LabelError(f"{where}: unsupported field type {ftype!r}")
+        fields.append((str(f["Name"]), order + _TYPES[ftype], _count(f.get("Size", 1), f"{where}: field Size", 1)))
+    if not fields:
+        raise LabelError(f"{where}: no Field groups")
+    names = [n for n, _, _ in fields]
+    if len(set(names)) != len(names):
+        raise LabelError(f"{where}: repeated field names {sorted(n for n in set(names) if names.count(n) > 1)}")
+    try:
+        dtype = np.dtype([(n, ty, (s,)) if s > 1 else (n, ty) for n, ty, s in fields])
+    except (ValueError, TypeError, OverflowError) as err:
+        raise LabelError(f"{where}: fields do not make a record ({err})") from None
+    for key in ("StartByte", "Bytes", "Records"):
+        if key not in t:
+            raise LabelError(f"{where} lacks {key}")
+    start = _count(t["StartByte"], f"{where}: StartByte", 1) - 1
+    nbytes = _count(t["Bytes"], f"{where}: Bytes", 0)
+    records = _count(t["Records"], f"{where}: Records", 0)
     if records * dtype.itemsize != nbytes:
         raise LabelError(f"table {name} of {os.fspath(path)}: {records} records of {dtype.itemsize} bytes "
                          f"do not make the stated {nbytes} bytes")
+    if start + nbytes > os.path.getsize(path):
+        raise LabelError(f"table {name} of {os.fspath(path)} extends past the end of the file")
     with open(path, "rb") as fh:
         fh.seek(start)
         raw = fh.read(nbytes)

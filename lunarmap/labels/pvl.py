@@ -17,7 +17,7 @@ import os
 import re
 from typing import Any, Iterator
 
-from ..errors import LabelError
+from ..errors import LabelError, LabelKeywordError
 
 __all__ = ["Label", "Quantity", "load_label", "parse_label"]
 
@@ -35,18 +35,33 @@ class Quantity(float):
     def __repr__(self) -> str:
         return f"Quantity({float(self)!r}, {self.unit!r})"
 
+    def __reduce__(self) -> tuple[type, tuple[float, str]]:
+        # float's own reduction calls Quantity(value) without the unit: labels would not unpickle
+        return Quantity, (float(self), self.unit)
+
 
 class Label(dict):
     """An ordered, case-insensitive mapping of a PVL block.
 
     Repeated keywords or blocks (several ``Object = Table``) are kept: ``label[k]``
-    returns the first and :meth:`all` every occurrence.
+    returns the first and :meth:`all` every occurrence. A missing key raises
+    :class:`~lunarmap.errors.LabelKeywordError` (a ``KeyError``) naming the label file and the
+    keyword's path in it (``IsisCube/Core/Dimensions/Lines``).
+
+    Parameters
+    ----------
+    source : str
+        The label file, for messages.
+    path : str
+        Where this block sits in the label (``"IsisCube/Core"``; ``""`` for the top level).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, source: str = "", path: str = "") -> None:
         super().__init__()
         self._lower: dict[str, str] = {}
         self._repeats: dict[str, list[Any]] = {}
+        self.source = source
+        self.path = path
 
     def add(self, key: str, value: Any) -> None:
         low = key.lower()
@@ -57,7 +72,11 @@ class Label(dict):
         super().__setitem__(key, value)
 
     def __getitem__(self, key: str) -> Any:
-        return super().__getitem__(self._lower.get(key.lower(), key))
+        try:
+            return super().__getitem__(self._lower.get(key.lower(), key))
+        except KeyError:
+            where = f"{self.path}/{key}" if self.path else str(key)
+            raise LabelKeywordError(f"label {self.source or '(in memory)'} lacks {where}") from None
 
     def __contains__(self, key: object) -> bool:
         return isinstance(key, str) and key.lower() in self._lower
@@ -190,8 +209,8 @@ class _Parser:
                 return Quantity(float(val), unit)
         return val
 
-    def block(self, end_words: tuple[str, ...], name: str | None) -> Label:
-        lab = Label()
+    def block(self, end_words: tuple[str, ...], name: str | None, path: str = "") -> Label:
+        lab = Label(self.source, path)
         while True:
             tok = self.peek()
             if tok is None:
@@ -221,7 +240,7 @@ class _Parser:
                 kind2, bname, _ = self.take()
                 bname = str(_scalar(kind2, bname))
                 ends = ("end_object",) if "object" in low else ("end_group",)
-                lab.add(bname, self.block(ends, bname))
+                lab.add(bname, self.block(ends, bname, f"{path}/{bname}" if path else bname))
             else:
                 lab.add(word, self.value())
 

@@ -31,14 +31,15 @@ import xarray as xr
 from numpy.typing import NDArray
 
 from ..atomic import atomic_write
-from ..errors import InvalidInputError
+from ..errors import InvalidInputError, TiePointFormatError
+from ..ncread import load_netcdf
 from .interest import InterestPoints, foerstner
 from .pairs import STATUS, MatchParams, PairMatches, match_points
 from .ransac import RansacParams, ransac_local_affine
 from .tracks import Observations, build_tracks
 
 __all__ = ["DetectParams", "TiePointParams", "detect_tile", "tile_windows", "match_pair", "assemble_tiepoints",
-           "write_tiepoints", "read_tiepoints"]
+           "write_tiepoints", "read_tiepoints", "check_tiepoint_table", "TIEPOINT_VARIABLES"]
 
 
 @dataclass
@@ -180,7 +181,56 @@ def write_tiepoints(ds: xr.Dataset, path: str | os.PathLike) -> Path:
     return atomic_write(path, lambda tmp: ds.to_netcdf(tmp, engine="netcdf4"))
 
 
+#: Variables of a tie-point table, all along one dimension (one row per observation).
+TIEPOINT_VARIABLES = ("point_id", "image_id", "line", "sample", "sigma_line", "sigma_sample")
+
+
+def check_tiepoint_table(ds: object, error: type[Exception] = TiePointFormatError, source: str = "") -> None:
+    """Raise ``error`` unless ``ds`` is a usable tie-point table (see the module docstring).
+
+    Checked: an ``xarray.Dataset`` with the variables of :data:`TIEPOINT_VARIABLES`, all 1-D along
+    one dimension, an ``image`` coordinate; integer point and image ids, image ids indexing
+    ``image``; finite coordinates and finite positive sigmas.
+    """
+    where = f"tie-point table {source}".rstrip()
+    if not isinstance(ds, xr.Dataset):
+        raise error(f"expected the tie-point Dataset of find_tiepoints, got {type(ds).__name__}")
+    missing = [v for v in TIEPOINT_VARIABLES if v not in ds] + (["image"] if "image" not in ds.coords else [])
+    if missing:
+        raise error(f"not a tie-point table{' ' + source if source else ''}: missing {', '.join(missing)}")
+    dims = {ds[v].dims for v in TIEPOINT_VARIABLES}
+    if len(dims) != 1 or len(next(iter(dims))) != 1:
+        raise error(f"{where}: {', '.join(TIEPOINT_VARIABLES)} must share one dimension, got {sorted(dims)}")
+    if ds["image"].ndim != 1:
+        raise error(f"{where}: the image coordinate must be 1-D")
+    for v in TIEPOINT_VARIABLES:
+        a = ds[v].values
+        if a.dtype.kind not in "iuf":
+            raise error(f"{where}: {v} must be numeric, got {a.dtype}")
+        if not np.all(np.isfinite(a)):
+            raise error(f"{where}: {v} holds NaN or infinite values")
+    for v in ("point_id", "image_id"):
+        a = ds[v].values
+        if not np.all(a == np.round(a)):
+            raise error(f"{where}: {v} holds non-integer values")
+    img = ds["image_id"].values
+    if img.size and (img.min() < 0 or img.max() >= ds["image"].size):
+        raise error(f"{where}: image_id out of range [0, {ds['image'].size})")
+    for v in ("sigma_line", "sigma_sample"):
+        if np.any(ds[v].values <= 0):
+            raise error(f"{where}: {v} must be positive")
+
+
 def read_tiepoints(path: str | os.PathLike) -> xr.Dataset:
-    """Read a tie-point table written by :func:`write_tiepoints` (loaded into memory, file closed)."""
-    with xr.open_dataset(path, engine="netcdf4") as ds:
-        return ds.load()
+    """Read a tie-point table written by :func:`write_tiepoints` (loaded into memory, file closed).
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    TiePointFormatError
+        The file is not a readable netCDF file or not a tie-point table (:func:`check_tiepoint_table`).
+    """
+    ds = load_netcdf(path, TiePointFormatError, "tie-point table")
+    check_tiepoint_table(ds, TiePointFormatError, str(path))
+    return ds

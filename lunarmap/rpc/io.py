@@ -31,10 +31,10 @@ import os
 from pathlib import Path
 
 import numpy as np
-import xarray as xr
 
 from ..camera.shape import MOON_RADIUS
 from ..atomic import atomic_write
+from ..ncread import load_netcdf
 from ..errors import RpcFormatError
 from .model import RationalFunctionModel
 
@@ -74,8 +74,11 @@ def read_netcdf(path: str | os.PathLike[str]) -> RationalFunctionModel:
     RpcFormatError
         The file is not a lunarmap RPC dataset.
     """
-    with xr.open_dataset(path, engine="netcdf4") as ds:
-        return RationalFunctionModel.from_dataset(ds.load())
+    ds = load_netcdf(path, RpcFormatError, "RPC model")
+    try:
+        return RationalFunctionModel.from_dataset(ds)
+    except RpcFormatError as err:   # name the file: the dataset does not know where it came from
+        raise RpcFormatError(f"{path}: {err}") from None
 
 
 def rpc_txt_keywords(model: RationalFunctionModel) -> dict[str, float]:
@@ -110,6 +113,20 @@ def write_rpc_txt(model: RationalFunctionModel, path: str | os.PathLike[str]) ->
     return atomic_write(path, write)
 
 
+def _comment_numbers(path: Path, line: str, prefix: str, count: int, kind: type) -> list:
+    """The ``count`` numbers of one of lunarmap's comment lines (radius, image size), checked."""
+    parts = line[len(prefix):].split()
+    try:
+        if len(parts) != count:
+            raise ValueError
+        values = [kind(p) for p in parts]
+    except ValueError:
+        raise RpcFormatError(f"{path}: comment line {line!r:.80} needs {count} number(s)") from None
+    if not all(np.isfinite(v) and v >= 0 for v in values):
+        raise RpcFormatError(f"{path}: comment line {line!r:.80} holds a negative or non-finite number")
+    return values
+
+
 def read_rpc_txt(path: str | os.PathLike[str], radius: float | None = None, n_lines: int | None = None,
                  n_samples: int | None = None) -> RationalFunctionModel:
     """Read an RPC00B ``_RPC.TXT`` file (GDAL / GeoEye keyword layout).
@@ -142,11 +159,11 @@ def read_rpc_txt(path: str | os.PathLike[str], radius: float | None = None, n_li
     for raw in text.splitlines():
         line = raw.strip()
         if line.startswith(_RADIUS_COMMENT):
-            file_radius = float(line[len(_RADIUS_COMMENT):])
+            file_radius = _comment_numbers(path, line, _RADIUS_COMMENT, 1, float)[0]
             continue
         if line.startswith(_SIZE_COMMENT):
-            parts = line[len(_SIZE_COMMENT):].split()
-            size = (int(parts[0]), int(parts[1]))
+            n_l, n_s = _comment_numbers(path, line, _SIZE_COMMENT, 2, int)
+            size = (n_l, n_s)
             continue
         if not line or line.startswith("#"):
             continue

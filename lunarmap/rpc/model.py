@@ -506,7 +506,7 @@ class RationalFunctionModel:
             radius = float(ds.attrs["reference_radius_m"])
             n_lines = int(ds.attrs.get("n_lines", 0))
             n_samples = int(ds.attrs.get("n_samples", 0))
-        except (KeyError, ValueError) as exc:
+        except (KeyError, ValueError, TypeError, IndexError, OverflowError) as exc:
             raise RpcFormatError(f"dataset is not an RPC model written by lunarmap: {exc}") from exc
         skip = {"rpc_model", "pixel_convention", "ground_convention", "reference_radius_m", "n_lines",
                 "n_samples"}

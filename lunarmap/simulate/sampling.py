@@ -9,6 +9,8 @@ coordinates through PROJ from the IAU 2015 Moon geographic CRS.
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pyproj
 import xarray as xr
@@ -21,6 +23,9 @@ from ..errors import InvalidInputError
 __all__ = ["RasterSampler"]
 
 Array = NDArray[np.float64]
+
+
+_TRANSFORMER_LOCK = threading.Lock()
 
 
 class RasterSampler:
@@ -77,10 +82,14 @@ class RasterSampler:
         return state
 
     def _to_map(self, lon: Array, lat: Array) -> tuple[Array, Array]:
-        if self._transformer is None:
-            self._transformer = pyproj.Transformer.from_crs(pyproj.CRS(MOON_GEOGRAPHIC_CRS),
-                                                            pyproj.CRS(self._crs), always_xy=True)
-        x, y = self._transformer.transform(lon, lat)
+        transformer = self._transformer
+        if transformer is None:
+            with _TRANSFORMER_LOCK:   # built once; pyproj transformers are thread-safe (pyproj >= 3.1)
+                if self._transformer is None:
+                    self._transformer = pyproj.Transformer.from_crs(pyproj.CRS(MOON_GEOGRAPHIC_CRS),
+                                                                    pyproj.CRS(self._crs), always_xy=True)
+                transformer = self._transformer
+        x, y = transformer.transform(lon, lat)
         return np.asarray(x, dtype=float), np.asarray(y, dtype=float)
 
     def __call__(self, lon: ArrayLike, lat: ArrayLike) -> Array:

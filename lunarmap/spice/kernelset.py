@@ -158,6 +158,8 @@ class KernelSet:
             raise KernelError(f"meta-kernel {mk}: PATH_SYMBOLS and PATH_VALUES differ in length")
         resolved: dict[str, str] = {}
         for sym, val in zip(symbols, values):
+            if "\x00" in val:
+                raise KernelError(f"meta-kernel {mk}: PATH_VALUES entry {val!r:.80} holds a NUL character")
             if path_values and sym in path_values:
                 resolved[sym] = str(Path(path_values[sym]).expanduser().resolve())
             elif val in (".", "$ROOT", ""):
@@ -168,6 +170,8 @@ class KernelSet:
                 resolved[sym] = str((folder / val).resolve())
         files = []
         for name in _join_continued(data["KERNELS_TO_LOAD"]):
+            if "\x00" in name:  # the OS cannot name such a file (and pathlib raises ValueError)
+                raise KernelError(f"meta-kernel {mk}: kernel name {name!r:.80} holds a NUL character")
             for sym in sorted(resolved, key=len, reverse=True):
                 name = name.replace("$" + sym, resolved[sym])
             p = Path(name)

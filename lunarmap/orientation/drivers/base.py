@@ -12,11 +12,12 @@ fallback that would hide the real error.
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar
 
 import numpy as np
 
-from ...errors import LabelError, UnknownInstrumentError
+from ...errors import LabelError, LabelKeywordError, UnknownInstrumentError
 from ...labels import Label
 from ...spice import queries as q
 from ..isd import ImageSupport, RotationTable, line_scan_epochs
@@ -74,41 +75,73 @@ class Driver:
         return cube["Instrument"]
 
     # -- label access -----------------------------------------------------------
+    # Every label value goes through these: a missing, misplaced or malformed keyword is a named
+    # LabelError (fuzzing found raw KeyError / ValueError / TypeError from direct indexing).
     def group(self, name: str) -> Label:
         """An ISIS label group (``IsisCube/<name>``) or the PDS3 label itself."""
         cube = self.label.get("IsisCube")
         if cube is not None:
-            g = cube.get(name)
-            if g is None:
-                raise LabelError(f"label {self.source} has no {name} group")
+            g = cube.get(name) if isinstance(cube, Label) else None
+            if not isinstance(g, Label):
+                raise LabelKeywordError(f"label {self.source} has no {name} group")
             return g
         return self.label
 
     def keyword(self, group: str, key: str) -> Any:
         g = self.group(group)
         if key not in g:
-            raise LabelError(f"label {self.source} lacks {group}/{key}")
+            raise LabelKeywordError(f"label {self.source} lacks {group}/{key}")
         return g[key]
+
+    def value_at(self, *path: str) -> Any:
+        """The value at a path of blocks and keyword, e.g. ``("IsisCube", "Core", "Dimensions", "Lines")``."""
+        node: Any = self.label
+        for i, key in enumerate(path):
+            if not isinstance(node, Label) or key not in node:
+                raise LabelKeywordError(f"label {self.source} lacks {'/'.join(path[: i + 1])}")
+            node = node[key]
+        return node
+
+    def as_int(self, value: Any, what: str, minimum: int | None = None) -> int:
+        """A label value as an integer (``what`` names it in the message), at least ``minimum``."""
+        try:
+            number = float(value)
+            if isinstance(value, bool) or not number.is_integer():
+                raise ValueError
+            out = int(number)
+        except (TypeError, ValueError, OverflowError):
+            raise LabelError(f"label {self.source}: {what} {value!r:.60} is not an integer") from None
+        if minimum is not None and out < minimum:
+            raise LabelError(f"label {self.source}: {what} {out} is less than {minimum}")
+        return out
+
+    def as_float(self, value: Any, what: str) -> float:
+        """A label value as a finite float (``what`` names it in the message)."""
+        try:
+            out = float(value)
+        except (TypeError, ValueError, OverflowError):
+            raise LabelError(f"label {self.source}: {what} {value!r:.60} is not a number") from None
+        if isinstance(value, bool) or not math.isfinite(out):
+            raise LabelError(f"label {self.source}: {what} {value!r:.60} is not a finite number")
+        return out
 
     @property
     def image_lines(self) -> int:
-        cube = self.label.get("IsisCube")
-        if cube is not None:
-            return int(cube["Core"]["Dimensions"]["Lines"])
-        return int(self.label["IMAGE"]["LINES"])
+        if self.label.get("IsisCube") is not None:
+            return self.as_int(self.value_at("IsisCube", "Core", "Dimensions", "Lines"), "Lines", minimum=1)
+        return self.as_int(self.value_at("IMAGE", "LINES"), "IMAGE/LINES", minimum=1)
 
     @property
     def image_samples(self) -> int:
-        cube = self.label.get("IsisCube")
-        if cube is not None:
-            return int(cube["Core"]["Dimensions"]["Samples"])
-        return int(self.label["IMAGE"]["LINE_SAMPLES"])
+        if self.label.get("IsisCube") is not None:
+            return self.as_int(self.value_at("IsisCube", "Core", "Dimensions", "Samples"), "Samples", minimum=1)
+        return self.as_int(self.value_at("IMAGE", "LINE_SAMPLES"), "IMAGE/LINE_SAMPLES", minimum=1)
 
     # -- hooks (SPICE ids and times) ---------------------------------------------
     @property
     def ikid(self) -> int:
         """NAIF instrument id (keys of the IK: ``INS<ikid>_*``)."""
-        return int(self.keyword("Kernels", "NaifFrameCode"))
+        return self.as_int(self.keyword("Kernels", "NaifFrameCode"), "Kernels/NaifFrameCode")
 
     @property
     def sensor_frame(self) -> int:

@@ -44,7 +44,7 @@ class ClementineUvvisDriver(Driver):
 
     def image_times(self) -> tuple[float, float, float]:
         start = q.str2et(str(self.keyword("Instrument", "StartTime")))
-        exposure = float(self.keyword("Instrument", "ExposureDuration")) * 1e-3
+        exposure = self.as_float(self.keyword("Instrument", "ExposureDuration"), "ExposureDuration") * 1e-3
         return start, start + exposure, 0.0
 
     def interior(self) -> dict[str, Any]:

@@ -71,13 +71,12 @@ class GenericDriver(Driver):
     def image_times(self) -> tuple[float, float, float]:
         g = self.group("Instrument")
         start = self._start()
-        try:
-            if self.model == "linescan":
-                dt = float(g["LineExposureDuration"]) * 1e-3
-                return start, start + self.image_lines * dt, dt
-            exposure = float(g.get("ExposureDuration", 0.0)) * 1e-3
-        except (KeyError, TypeError, ValueError) as err:
-            raise LabelError(f"label {self.source}: missing or malformed exposure keyword") from err
+        # each value is read by a named accessor: a catch-all here once reported a missing image size
+        # as a "malformed exposure keyword"
+        if self.model == "linescan":
+            dt = self.as_float(self.keyword("Instrument", "LineExposureDuration"), "LineExposureDuration") * 1e-3
+            return start, start + self.image_lines * dt, dt
+        exposure = self.as_float(g.get("ExposureDuration", 0.0), "ExposureDuration") * 1e-3
         return start, start + exposure, 0.0
 
     def interior(self) -> dict[str, Any]:

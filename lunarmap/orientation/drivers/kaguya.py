@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from typing import Any
 
-from ...errors import LabelError
 from ...labels import Label
 from ...spice import queries as q
 from .base import Driver
@@ -57,13 +56,10 @@ class KaguyaTcDriver(Driver):
         return "SURFACE"
 
     def image_times(self) -> tuple[float, float, float]:
-        try:
-            clock = float(self.label["CORRECTED_SC_CLOCK_START_COUNT"])
-            interval = self.label["CORRECTED_SAMPLING_INTERVAL"]
-            dt = float(interval[0] if isinstance(interval, list) else interval) * 1e-3
-        except (KeyError, TypeError, ValueError) as err:
-            raise LabelError(f"label {self.source}: missing or malformed CORRECTED_SC_CLOCK_START_COUNT / "
-                             f"CORRECTED_SAMPLING_INTERVAL") from err
+        clock = self.as_float(self.value_at("CORRECTED_SC_CLOCK_START_COUNT"), "CORRECTED_SC_CLOCK_START_COUNT")
+        interval = self.value_at("CORRECTED_SAMPLING_INTERVAL")
+        interval = interval[0] if isinstance(interval, list) and interval else interval
+        dt = self.as_float(interval, "CORRECTED_SAMPLING_INTERVAL") * 1e-3
         start = q.sct2e(self.spacecraft_id, clock)
         return start, start + self.image_lines * dt, dt
 
@@ -78,7 +74,7 @@ class KaguyaTcDriver(Driver):
             "detector_center_line": float(self.ik("BORESIGHT_LINE")),
             "detector_center_sample": float(self.ik("BORESIGHT_SAMPLE")),
             "starting_detector_line": 1.0,
-            "starting_detector_sample": float(self.label["FIRST_PIXEL_NUMBER"]) - 0.5,
+            "starting_detector_sample": self.as_float(self.value_at("FIRST_PIXEL_NUMBER"), "FIRST_PIXEL_NUMBER") - 0.5,
             "line_summing": 1,
             "sample_summing": 1,
             "optical_distortion": {"kaguyalism": {

@@ -230,23 +230,6 @@ class LroNacPds3Driver(_LroNac):
     def platform_name(self) -> str:
         return str(self._pds3("MISSION_NAME"))  # lronac2isis: SpacecraftName = MISSION_NAME
 
-    def _image(self, key: str) -> int:
-        image = self._pds3("IMAGE")
-        if not isinstance(image, Label) or key not in image:
-            raise LabelError(f"PDS3 label {self.source} lacks IMAGE/{key}")
-        try:
-            return int(image[key])
-        except (TypeError, ValueError) as err:
-            raise LabelError(f"PDS3 label {self.source}: IMAGE/{key} {image[key]!r} is not an integer") from err
-
-    @property
-    def image_lines(self) -> int:
-        return self._image("LINES")
-
-    @property
-    def image_samples(self) -> int:
-        return self._image("LINE_SAMPLES")
-
     def line_exposure(self) -> Any:
         return self._pds3("LINE_EXPOSURE_DURATION")
 
