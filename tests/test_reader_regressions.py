@@ -8,6 +8,7 @@ lunarmap exception whose message names the file and the keyword.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -261,3 +262,35 @@ def test_damaged_netcdf_files_leave_no_open_descriptor(netcdf_files, tmp_path):
         p.unlink()
     assert failed > 20                       # the damage was real
     assert open_fds() == before
+
+
+def test_netcdf_file_that_hangs_the_hdf5_library_is_named(monkeypatch):
+    """Fuzzing found a mutated tie-point table on which netCDF-C/HDF5 never returns from ``nc_open`` (from a
+    file or from memory; no Python timeout can interrupt it). The reader probes the open in a child process:
+    the caller gets a named error after the probe's time limit instead of hanging."""
+    import time
+
+    import lunarmap.ncread as ncread
+    from lunarmap.errors import TiePointFormatError
+    from lunarmap.matching import read_tiepoints
+
+    bad = Path(__file__).parent / "data" / "hdf5_open_never_returns.nc"
+    monkeypatch.setattr(ncread, "PROBE_TIMEOUT", 1.0)
+    t = time.monotonic()
+    with pytest.raises(TiePointFormatError, match="did not finish opening it within 1 s"):
+        read_tiepoints(bad)
+    assert time.monotonic() - t < 10.0
+    # the same file really hangs the library: the fork probe alone reports it (not an exception)
+    assert ncread._probe_fork(bad.read_bytes(), 1.0) == "hang"
+
+
+def test_netcdf_probe_falls_back_to_a_fresh_interpreter(netcdf_files, monkeypatch):
+    """A fork probe that stalls on a good file (a lock held by another thread at fork time) is retried in a
+    fresh interpreter, and the good file is read."""
+    import lunarmap.ncread as ncread
+    from lunarmap.matching import read_tiepoints
+
+    calls = []
+    monkeypatch.setattr(ncread, "_probe_fork", lambda data, timeout: calls.append(len(data)) or "hang")
+    tp = read_tiepoints(netcdf_files["tiepoints"])
+    assert calls and tp.sizes["observation"] > 0
