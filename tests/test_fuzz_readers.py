@@ -22,7 +22,10 @@ BUDGET = int(os.environ.get("LUNARMAP_FUZZ_BUDGET", "200"))
 
 @pytest.fixture(scope="module")
 def targets(tmp_path_factory):
-    return build_targets(tmp_path_factory.mktemp("fuzz_seeds"))
+    from lunarmap.spice import clear
+
+    yield build_targets(tmp_path_factory.mktemp("fuzz_seeds"))
+    clear()   # the label targets keep their kernel set resident; later tests expect an empty pool
 
 
 @pytest.mark.parametrize("reader", sorted(READERS))
