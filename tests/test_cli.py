@@ -107,31 +107,44 @@ def test_demo_runs_the_whole_chain(tmp_path, capsys):
 
     assert read_tiepoints(outputs / "tiepoints.nc").sizes["observation"] > 1000
     assert set(read_network(out / "points.nc").point_type) == {"control", "check"}
-    # every RPC file (fitted by the run's rpc step to the navigation camera, before matching) reproduces
-    # that camera reloaded independently from the unchanged label through the navigation kernels
+    # every RPC file reproduces its camera reloaded independently from the unchanged label: outputs/rpc (fitted
+    # before matching) the navigation camera through the navigation kernels, outputs/rpc_adjusted the adjusted
+    # camera through the adjusted kernels the run wrote (not the in-memory cameras the RFMs were fitted to)
     import lunarmap
     from lunarmap.rpc import read_rpc_txt
 
-    rpcs = sorted((outputs / "rpc").glob("*_RPC.TXT"))
-    assert len(rpcs) == 12
-    # the fits' own check RMS per camera kind, as printed: "check RMS: nac 1.6e-06 px, tc 8.5e-02 px, ..."
-    printed = text.split("check RMS:")[1].split("\n")[0]
-    check_rms = {kind: float(value) for kind, value in
-                 (part.split()[:2] for part in printed.split(","))}
-    assert set(check_rms) == {"nac", "tc", "frame"}
-    worst: dict[str, float] = {}
-    for f in rpcs:
-        name = f.name[: -len("_RPC.TXT")]
-        kind = name.split("_")[1]
-        cam = lunarmap.load_camera(out / "mission" / f"{name}.lbl", out / "mission" / "navigation.tm")
-        rfm = read_rpc_txt(f)
-        assert (rfm.n_lines, rfm.n_samples) == (cam.n_lines, cam.n_samples)
-        li, sa = np.meshgrid(np.linspace(1, cam.n_lines - 1, 7), np.linspace(1, cam.n_samples - 1, 7), indexing="ij")
-        X = cam.image_to_ground(li.ravel(), sa.ravel(), height=100.0)
-        rl, rs = rfm.ground_to_image(X)
-        worst[kind] = max(worst.get(kind, 0.0), float(np.max(np.hypot(rl - li.ravel(), rs - sa.ravel()))))
-    # measured (seed 0): worst / check RMS = 2.8 (nac, 4.5e-6 px), 2.2 (tc, 0.19 px: a cubic cannot follow the
-    # TC's kaguyalism along-track distortion), 1.9 (frame, 4.1e-5 px); a file that did not reproduce its
-    # camera would be off by pixels
-    for kind, err in worst.items():
-        assert err <= max(5.0 * check_rms[kind], 1e-5), (kind, err, check_rms[kind])
+    printed = {}
+    for line in text.splitlines():     # "cubic RFMs of the ... cameras (...), check RMS: nac 1.6e-06 px, tc ..."
+        if "cubic RFMs of the" in line:
+            which = "rpc_adjusted" if "adjusted cameras" in line else "rpc"
+            printed[which] = {kind: float(value) for kind, value in
+                              (part.split()[:2] for part in line.split("check RMS:")[1].split(","))}
+    assert set(printed) == {"rpc", "rpc_adjusted"}
+    kernels = {"rpc": out / "mission" / "navigation.tm", "rpc_adjusted": outputs / "adjusted.tm"}
+    for which, check_rms in printed.items():
+        assert set(check_rms) == {"nac", "tc", "frame"}
+        rpcs = sorted((outputs / which).glob("*_RPC.TXT"))
+        assert len(rpcs) == 12
+        worst: dict[str, float] = {}
+        moved = 0.0
+        for f in rpcs:
+            name = f.name[: -len("_RPC.TXT")]
+            kind = name.split("_")[1]
+            cam = lunarmap.load_camera(out / "mission" / f"{name}.lbl", kernels[which])
+            rfm = read_rpc_txt(f)
+            assert (rfm.n_lines, rfm.n_samples) == (cam.n_lines, cam.n_samples)
+            li, sa = np.meshgrid(np.linspace(1, cam.n_lines - 1, 7), np.linspace(1, cam.n_samples - 1, 7),
+                                 indexing="ij")
+            X = cam.image_to_ground(li.ravel(), sa.ravel(), height=100.0)
+            rl, rs = rfm.ground_to_image(X)
+            worst[kind] = max(worst.get(kind, 0.0), float(np.max(np.hypot(rl - li.ravel(), rs - sa.ravel()))))
+            other = read_rpc_txt(outputs / ("rpc" if which == "rpc_adjusted" else "rpc_adjusted") / f.name)
+            ol, os_ = other.ground_to_image(X)
+            # NaN: the point lies outside the other RFM's ground domain, i.e. it moved all the more
+            moved = max(moved, float(np.max(np.nan_to_num(np.hypot(ol - li.ravel(), os_ - sa.ravel()), nan=np.inf))))
+        # measured (seed 0): worst / check RMS = 2.8 (nac, 4.5e-6 px), 2.2 (tc, 0.19 px: a cubic cannot follow the
+        # TC's kaguyalism along-track distortion), 1.9 (frame, 4.1e-5 px); a file that did not reproduce its
+        # camera would be off by pixels
+        for kind, err in worst.items():
+            assert err <= max(5.0 * check_rms[kind], 1e-5), (which, kind, err, check_rms[kind])
+        assert moved > 1.0   # the other set is off by the adjustment (tens of metres): the check can fail

@@ -37,7 +37,7 @@ import xarray as xr
 
 from ..errors import ConfigError, WorkflowError
 from .config import RunConfig, load_config
-from .steps import (Done, adjust_step, as_dict, detect_step, footprint_step, isd_step, kernels_step, match_step,
+from .steps import (Done, adjust_step, adjusted_rpc_step, as_dict, detect_step, footprint_step, isd_step, kernels_step, match_step,
                     provenance, read_pixels, rpc_step, tiepoints_step)
 from .store import Store, file_digest, files_digest, step_key
 
@@ -46,7 +46,7 @@ __all__ = ["RunResult", "run", "build_graph", "STAGES"]
 _log = logging.getLogger(__name__)
 
 #: Stages in graph order.
-STAGES = ("isd", "footprint", "rpc", "detect", "match", "tiepoints", "adjust", "kernels")
+STAGES = ("isd", "footprint", "rpc", "detect", "match", "tiepoints", "adjust", "kernels", "rpc_adjusted")
 
 
 @dataclass
@@ -205,6 +205,10 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
     k_ker = step_key("kernels", None, [k_adj, kernels_digest])
     ker = node("kernels", k_ker, kernels_step, store, k_ker, names, adj, [isd[n] for n in names],
                str(cfg.metakernel))
+    if cfg.rpc_enabled:
+        for n in names:
+            k = step_key("rpc_adjusted", [list(cfg.rpc_height_range), n], [k_adj])
+            node("rpc_adjusted", k, adjusted_rpc_step, store, k, n, adj, cfg.rpc_height_range)
     return _Graph(tasks, stage_of, names, pairs, apart)
 
 
@@ -308,6 +312,14 @@ def _export(cfg: RunConfig, graph: _Graph, records: list[Done]) -> tuple[dict[st
             copy(d.path, out / "rpc" / f"{d.item}.nc")
             write_rpc_txt(read_netcdf(d.path), out / "rpc" / f"{d.item}_RPC.TXT")
         files["rpc"] = out / "rpc"
+    if "rpc_adjusted" in by_stage:
+        from ..rpc import read_netcdf, write_rpc_txt
+
+        (out / "rpc_adjusted").mkdir(exist_ok=True)
+        for d in by_stage["rpc_adjusted"]:
+            copy(d.path, out / "rpc_adjusted" / f"{d.item}.nc")
+            write_rpc_txt(read_netcdf(d.path), out / "rpc_adjusted" / f"{d.item}_RPC.TXT")
+        files["rpc_adjusted"] = out / "rpc_adjusted"
     (out / "isd").mkdir(exist_ok=True)
     for d in by_stage["isd"]:
         copy(d.path, out / "isd" / f"{d.item}.json")

@@ -174,6 +174,27 @@ def rpc_step(store: Store, key: str, isd: Done, height_range: tuple[float, float
 
 
 @_one_blas_thread
+def adjusted_rpc_step(store: Store, key: str, name: str, adjusted: Done, height_range: tuple[float, float]) -> Done:
+    """The cubic RFM of an image's *adjusted* camera (from the adjustment's ISD), with its check report.
+
+    One task per image after the adjustment, so a large run fits them in parallel like the first RFMs.
+    """
+    t = time.perf_counter()
+    if store.has("rpc_adjusted", key, "nc"):
+        return Done("rpc_adjusted", key, name, str(store.path("rpc_adjusted", key, "nc")), False)
+    from ..camera.factory import camera_from_isd_file
+    from ..rpc import fit_rpc, write_netcdf
+
+    try:
+        fit = fit_rpc(camera_from_isd_file(Path(adjusted.path) / f"{name}.adjusted.json"), tuple(height_range))
+    except LunarmapError as err:
+        raise _fail("rpc_adjusted", name, err) from None
+    path = store.write("rpc_adjusted", key, "nc", lambda tmp: write_netcdf(fit.model, tmp))
+    return Done("rpc_adjusted", key, name, str(path), True, time.perf_counter() - t,
+                note=f"check RMS {fit.check.rms:.2e} px")
+
+
+@_one_blas_thread
 def detect_step(store: Store, key: str, name: str, pixels: str, core: tuple[int, int, int, int],
                 padded: tuple[int, int, int, int], params: Any, saturation: float | None) -> Done:
     """Förstner interest points of one tile (``.npz``)."""
