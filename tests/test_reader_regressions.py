@@ -294,3 +294,31 @@ def test_netcdf_probe_falls_back_to_a_fresh_interpreter(netcdf_files, monkeypatc
     monkeypatch.setattr(ncread, "_probe_fork", lambda data, timeout: calls.append(len(data)) or "hang")
     tp = read_tiepoints(netcdf_files["tiepoints"])
     assert calls and tp.sizes["observation"] > 0
+
+
+@pytest.mark.parametrize("which", ["lunar_orbiter", "apollo"])
+def test_historical_drivers_name_a_bad_frame_code(which, tmp_path, request):
+    """bench/fuzz.py (10,000 inputs): the Lunar Orbiter driver raised a raw ValueError on
+    ``NaifFrameCode = End`` (the Apollo driver read the code the same way)."""
+    from lunarmap.orientation.drivers import image_support
+
+    kset = request.getfixturevalue({"lunar_orbiter": "lo_set", "apollo": "apollo_set"}[which])
+    label = next(p for p in sorted(kset.glob("*.lbl")))
+    text = label.read_text()
+    code = next(line for line in text.splitlines() if line.strip().startswith("NaifFrameCode"))
+    bad = tmp_path / label.name
+    bad.write_text(text.replace(code, "    NaifFrameCode             = End"))
+    with pytest.raises(LabelError, match="NaifFrameCode 'End' is not an integer"):
+        image_support(bad, next(kset.glob("*.tm")))
+
+
+def test_absurd_image_size_is_named(sim_mission, tmp_path):
+    """bench/fuzz.py: ``Lines`` of 10^18 made the line-scan sampling grid raise numpy's raw ValueError
+    ("Maximum allowed size exceeded")."""
+    from lunarmap.orientation.drivers import image_support
+
+    text = (sim_mission.parent / "sim_nac_equator.lbl").read_text()
+    lab = tmp_path / "huge.lbl"
+    lab.write_text(text.replace("Lines   = 52224", "Lines   = 1000000000000000000"))
+    with pytest.raises(LabelError, match="Lines 1000000000000000000 is more than 10000000"):
+        image_support(lab, sim_mission)

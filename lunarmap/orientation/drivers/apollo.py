@@ -57,7 +57,7 @@ class ApolloMetricDriver(Driver):
 
     @property
     def ikid(self) -> int:
-        ikid = int(self.keyword("Kernels", "NaifFrameCode"))
+        ikid = self.as_int(self.keyword("Kernels", "NaifFrameCode"), "Kernels/NaifFrameCode")
         mission = _mission(self.platform_name)
         if mission is None or ikid != _MISSIONS[mission]:
             raise UnknownInstrumentError(f"label {self.source}: NaifFrameCode {ikid} is not the metric camera of "

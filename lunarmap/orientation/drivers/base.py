@@ -87,6 +87,10 @@ class Driver:
             return g
         return self.label
 
+    #: largest image dimension a label may give (pixels): far beyond any planetary image (LRO NAC 52,224
+    #: lines, HRSC strips ~10^5), small enough that the sampling grids of a damaged label fit in memory
+    MAX_IMAGE_SIZE = 10_000_000
+
     def keyword(self, group: str, key: str) -> Any:
         g = self.group(group)
         if key not in g:
@@ -102,8 +106,8 @@ class Driver:
             node = node[key]
         return node
 
-    def as_int(self, value: Any, what: str, minimum: int | None = None) -> int:
-        """A label value as an integer (``what`` names it in the message), at least ``minimum``."""
+    def as_int(self, value: Any, what: str, minimum: int | None = None, maximum: int | None = None) -> int:
+        """A label value as an integer (``what`` names it in the message), in ``[minimum, maximum]``."""
         try:
             number = float(value)
             if isinstance(value, bool) or not number.is_integer():
@@ -113,6 +117,8 @@ class Driver:
             raise LabelError(f"label {self.source}: {what} {value!r:.60} is not an integer") from None
         if minimum is not None and out < minimum:
             raise LabelError(f"label {self.source}: {what} {out} is less than {minimum}")
+        if maximum is not None and out > maximum:
+            raise LabelError(f"label {self.source}: {what} {out} is more than {maximum}")
         return out
 
     def as_float(self, value: Any, what: str) -> float:
@@ -128,14 +134,17 @@ class Driver:
     @property
     def image_lines(self) -> int:
         if self.label.get("IsisCube") is not None:
-            return self.as_int(self.value_at("IsisCube", "Core", "Dimensions", "Lines"), "Lines", minimum=1)
-        return self.as_int(self.value_at("IMAGE", "LINES"), "IMAGE/LINES", minimum=1)
+            return self.as_int(self.value_at("IsisCube", "Core", "Dimensions", "Lines"), "Lines", minimum=1,
+                               maximum=self.MAX_IMAGE_SIZE)
+        return self.as_int(self.value_at("IMAGE", "LINES"), "IMAGE/LINES", minimum=1, maximum=self.MAX_IMAGE_SIZE)
 
     @property
     def image_samples(self) -> int:
         if self.label.get("IsisCube") is not None:
-            return self.as_int(self.value_at("IsisCube", "Core", "Dimensions", "Samples"), "Samples", minimum=1)
-        return self.as_int(self.value_at("IMAGE", "LINE_SAMPLES"), "IMAGE/LINE_SAMPLES", minimum=1)
+            return self.as_int(self.value_at("IsisCube", "Core", "Dimensions", "Samples"), "Samples", minimum=1,
+                               maximum=self.MAX_IMAGE_SIZE)
+        return self.as_int(self.value_at("IMAGE", "LINE_SAMPLES"), "IMAGE/LINE_SAMPLES", minimum=1,
+                           maximum=self.MAX_IMAGE_SIZE)
 
     # -- hooks (SPICE ids and times) ---------------------------------------------
     @property

@@ -108,7 +108,7 @@ class LunarOrbiterHighDriver(Driver):
 
     @property
     def ikid(self) -> int:
-        ikid = int(self.keyword("Kernels", "NaifFrameCode"))
+        ikid = self.as_int(self.keyword("Kernels", "NaifFrameCode"), "Kernels/NaifFrameCode")
         expected = -(530000 + 1000 * self._mission + 1)
         if ikid != expected:
             raise UnknownInstrumentError(f"label {self.source}: NaifFrameCode {ikid} is not the high-resolution "
