@@ -235,7 +235,8 @@ class Ledger:
                 drop.append(int(j))
         for j in drop:
             self.weights.dropped_points[j] = True
-            self.decisions.append(Decision(self.step, 0, "point", j, -1, j, -1, np.nan, np.nan, "dropped", ASIDE_BEHIND))
+            self.decisions.append(Decision(self.step, 0, "point", j, -1, j, -1, np.nan, np.nan, "dropped",
+                                           ASIDE_BEHIND))
         return reweighted_problem(self.base, self.weights, pb.cam_params, pts, self.terms)
 
     def _degenerate(self, res: AdjustmentResult) -> NDArray[np.int64]:
