@@ -319,3 +319,17 @@ def test_a_point_started_behind_its_cameras_is_reintersected_not_fatal():
     assert not led.weights.dropped_points[j] and not led.decisions
     # same minimum as the adjustment from the good start (the guard only moved the start)
     assert np.max(np.abs(res.points - ref.points)) < 1e-3 and res.cost == pytest.approx(ref.cost, rel=1e-6)
+
+
+def test_sequent_best_pair_is_the_one_most_rays_agree_with():
+    # bench draw 19: a 2,267 px error along the epipolar line of its best pair (smallest sigma) made a
+    # consistent pair at a wrong height; Sequent then removed the 3 good rays of that 5-ray point
+    sim = inject_blunders(dlr_block(seed=19, example="blunders"), seed=1019)
+    m = sim.block.measurements
+    seq = sequent_screening(dlr_problem(sim), limit_km=10.0)
+    large = sim.blunders.image_obs[sim.blunders.image_group == 1]
+    assert not seq.keep[large].any()                         # every large error out
+    j = m.pt_idx[140]
+    assert 140 in large and np.flatnonzero(m.pt_idx == j).size == 5
+    good = np.setdiff1d(np.flatnonzero(m.pt_idx == j), [140])
+    assert seq.keep[good].all()                              # the good rays of that point stay
