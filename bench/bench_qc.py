@@ -279,7 +279,7 @@ def part_mismatches(seed: int, fractions: list[float]) -> None:
     import lunarmap
     from lunarmap.adjust import NavigationSpec, SolverOptions, merge_networks, network_from_tiepoints
     from lunarmap.adjust.qc import QCOptions, block_result, quality_control
-    from lunarmap.demo import _network_of
+    from lunarmap.workflows.example import _points_network as _network_of
     from lunarmap.matching import DetectParams, MatchParams, TiePointParams
     from lunarmap.simulate import block_cameras, block_check_points, render_block
     from lunarmap.synthetic import write_block_mission

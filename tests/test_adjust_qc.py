@@ -15,7 +15,7 @@ import pytest
 from lunarmap.adjust import SolverOptions, solve
 from lunarmap.adjust.qc import QCOptions, quality_control, sequent_screening, w_tests, Ledger
 from lunarmap.adjust.variance import estimate_variance_components, group_variance_factors, observation_groups
-from lunarmap.errors import QualityControlInputError, VarianceComponentError
+from lunarmap.errors import AdjustmentDivergedError, QualityControlInputError, VarianceComponentError
 from lunarmap.simulate import dlr_block, inject_blunders
 from lunarmap.simulate.dlr import OFFSET_EXAMPLES, PAPER_AXES
 
@@ -283,3 +283,53 @@ def test_block_with_many_mismatched_tie_observations(fraction):
           f"good ones out; check-point RMS clean {clean:.0f} m, plain {plain:.0f} m, QC {got:.0f} m "
           f"({got / clean:.2f}x)")
     assert qc.result.converged and got <= 1.5 * clean and plain > 2.0 * clean
+
+
+# --- a QC run never dies on the data it cleans (bench draws 3 and 4 of `bench_qc.py --part blunders`) ---------
+
+@pytest.mark.parametrize("draw", [3, 4])
+def test_sequent_then_robust_survives_points_dragged_off_by_gross_errors(draw):
+    # draw 4: the first adjustment dragged a point onto a projection centre; reset to its start it was
+    # behind a camera and the re-solve raised AdjustmentDivergedError. Draw 3: three such points were
+    # set aside with all their 12 good rays before Sequent could take the gross errors out of them.
+    sim = inject_blunders(dlr_block(seed=draw, example="blunders"), seed=1000 + draw)
+    qc = quality_control(dlr_problem(sim), ("sequent", "robust"), image_group=sim.block.camera,
+                         options=QCOptions(solver=OPTS))
+    s = score(sim, qc)
+    print(f"draw {draw} sequent -> robust:", s)
+    assert s["large"] == 10 and s["small"] == 10
+    assert s["lost_with_points"] == 0 and s["false_images"] <= 1
+    assert np.isfinite(qc.result.cost)     # (sigma0 stays > 1: robust leaves the navigation and control errors)
+    aside = {d.index for d in qc.report.decisions if d.kind == "point" and d.action == "dropped"}
+    back = {d.index for d in qc.report.decisions if d.kind == "point" and d.action == "reinstated"}
+    assert aside <= back          # every point the first adjustment set aside came back for Sequent
+
+
+def test_a_point_started_behind_its_cameras_is_reintersected_not_fatal():
+    sim = dlr_block(seed=1, example="blunders")
+    pb = dlr_problem(sim)
+    ref = solve(pb, OPTS)
+    j = int(np.flatnonzero(~np.isin(np.arange(pb.n_points), sim.block.control))[0])
+    pb.points = pb.points.copy()
+    pb.points[j] = 3.0 * pb.points[j]               # out beyond the orbit: behind every camera (NaN pixels)
+    with pytest.raises(AdjustmentDivergedError, match="not finite"):
+        solve(pb, OPTS)
+    led = Ledger(pb)
+    res = led.adjust(OPTS)
+    assert not led.weights.dropped_points[j] and not led.decisions
+    # same minimum as the adjustment from the good start (the guard only moved the start)
+    assert np.max(np.abs(res.points - ref.points)) < 1e-3 and res.cost == pytest.approx(ref.cost, rel=1e-6)
+
+
+def test_sequent_best_pair_is_the_one_most_rays_agree_with():
+    # bench draw 19: a 2,267 px error along the epipolar line of its best pair (smallest sigma) made a
+    # consistent pair at a wrong height; Sequent then removed the 3 good rays of that 5-ray point
+    sim = inject_blunders(dlr_block(seed=19, example="blunders"), seed=1019)
+    m = sim.block.measurements
+    seq = sequent_screening(dlr_problem(sim), limit_km=10.0)
+    large = sim.blunders.image_obs[sim.blunders.image_group == 1]
+    assert not seq.keep[large].any()                         # every large error out
+    j = m.pt_idx[140]
+    assert 140 in large and np.flatnonzero(m.pt_idx == j).size == 5
+    good = np.setdiff1d(np.flatnonzero(m.pt_idx == j), [140])
+    assert seq.keep[good].all()                              # the good rays of that point stay

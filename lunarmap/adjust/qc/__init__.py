@@ -192,6 +192,9 @@ def quality_control(problem: BundleProblem, steps: Sequence[str] = ("sequent", "
     for step in steps:
         ledger.step = step
         if step == "sequent":
+            # the first adjustment may have set aside points that gross errors dragged onto a projection
+            # centre, with all their good rays; Sequent tests the rays themselves, so it gets them back
+            ledger.reinstate_set_aside("sequent")
             seq = sequent_screening(ledger.problem(first), opt.sequent_limit_km, opt.units_per_km,
                                     active=ledger.active, cam_params=problem.cam_params)
             st = seq.points["status"].values

@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from ...errors import AdjustmentInputError
 from ..intersection import intersect_points
 from ..problem import BundleProblem
 from ..result import AdjustmentResult
@@ -25,6 +26,8 @@ from ..weights import Weights, reweighted_problem
 
 __all__ = ["Decision", "Ledger", "DEGENERATE_NORMAL"]
 
+#: decision groups of points set aside by an adjustment (not for their rays)
+ASIDE_CENTRE, ASIDE_BEHIND = "point on a projection centre", "point behind a camera"
 #: a free point whose normal-block trace exceeds this multiple of the median point's sits on a projection centre
 DEGENERATE_NORMAL = 1e4
 
@@ -154,7 +157,7 @@ class Ledger:
         opts = options or SolverOptions()
         if self._adjusted:
             opts = dataclasses.replace(opts, check_datum=False)
-        self.result = solve(self.problem(start), opts, reweight=reweight)
+        self.result = solve(self._finite(self.problem(start)), opts, reweight=reweight)
         self._adjusted = True
         for _ in range(3):
             bad = self._degenerate(self.result)
@@ -165,14 +168,76 @@ class Ledger:
             for j in bad:
                 self.weights.dropped_points[j] = True
                 self.decisions.append(Decision(self.step, 0, "point", int(j), -1, int(j), -1, np.nan, np.nan,
-                                               "dropped", "point on a projection centre"))
+                                               "dropped", ASIDE_CENTRE))
             # held fixed with weight 0, but its projections must stay finite (0 * NaN is NaN in the cost):
-            # back to its start value
+            # back to its start value, or another value every one of its images sees (_finite)
             pts = self.result.points.copy()
             pts[bad] = self.base.points[bad]
-            self.result = solve(reweighted_problem(self.base, self.weights, self.result.cam_params, pts, self.terms),
+            self.result = solve(self._finite(reweighted_problem(self.base, self.weights, self.result.cam_params, pts,
+                                                                self.terms)),
                                 dataclasses.replace(opts, check_datum=False), reweight=reweight)
         return self.result
+
+    def _finite(self, pb: BundleProblem) -> BundleProblem:
+        """``pb`` with every point's projections finite, so that its cost is (weight 0 times NaN is NaN).
+
+        A point whose start is behind one of its cameras (or at infinity) after a gross error -- its
+        start intersected with a blunder, or reset there -- moves to the first of: the intersection
+        of its active rays, its base start, its control value, the median of the other points whose
+        projections are all finite. Unless that is the intersection of its own active rays (then it
+        is adjusted as usual), it is set aside (weight 0) and the decision recorded: a quality-control
+        run never dies on the data it is meant to clean.
+        """
+        o = self.base.obs
+        model = pb.model
+        bad_obs = ~np.all(np.isfinite(model.project_indexed(pb.cam_params, o.cam_idx, pb.points, o.pt_idx)), axis=1)
+        if not bad_obs.any():
+            return pb
+        bad_pt = np.zeros(self.base.n_points, bool)
+        bad_pt[o.pt_idx[bad_obs]] = True
+        pts = pb.points.copy()
+        good = ~bad_pt & np.all(np.isfinite(pts), axis=1)
+        median = np.median(pts[good], axis=0) if good.any() else None
+        act = self.active
+        ctl_value = {}
+        if self.base.priors is not None:
+            ctl_value = {int(j): x for j, x in zip(self.base.priors.idx, self.base.priors.xyz)}
+        drop = []
+        for j in np.flatnonzero(bad_pt):
+            track = self._track_order[self._track_start[j]:self._track_start[j + 1]]
+
+            def sees(X):
+                if X is None or not np.all(np.isfinite(X)):
+                    return False
+                x = model.project(pb.cam_params, o.cam_idx[track], np.broadcast_to(X, (track.size, 3)))
+                return bool(np.all(np.isfinite(x)))
+
+            use = track[act[track]]
+            X_int = None
+            if use.size >= 2 and not self.weights.dropped_points[j]:
+                try:
+                    X_int = intersect_points(model, pb.cam_params, o.cam_idx[use], np.zeros(use.size, np.int64),
+                                             o.xy[use], o.sigma[use] * self.weights.image_sigma[use][:, None],
+                                             n_pt=1).xyz[0]
+                except (ValueError, np.linalg.LinAlgError):
+                    X_int = None
+            if sees(X_int):
+                pts[j] = X_int
+                continue
+            for X in (self.base.points[j], ctl_value.get(int(j)), median):
+                if sees(X):
+                    pts[j] = X
+                    break
+            else:
+                raise AdjustmentInputError(f"point {int(j)} is behind a camera from every start value tried "
+                                           "(its intersection, its start, the median point)")
+            if not self.weights.dropped_points[j] and not self._control_pts[j]:
+                drop.append(int(j))
+        for j in drop:
+            self.weights.dropped_points[j] = True
+            self.decisions.append(Decision(self.step, 0, "point", j, -1, j, -1, np.nan, np.nan, "dropped",
+                                           ASIDE_BEHIND))
+        return reweighted_problem(self.base, self.weights, pb.cam_params, pts, self.terms)
 
     def _degenerate(self, res: AdjustmentResult) -> NDArray[np.int64]:
         """Free tie points whose normal block is ``DEGENERATE_NORMAL`` times the median point's: partials blown
@@ -259,6 +324,26 @@ class Ledger:
         self._touched.update(int(j) for j in pts)
         for k in np.unique(o.cam_idx[obs]):
             self.weights.fixed_images[k] = False
+
+    def reinstate_set_aside(self, step: str, rnd: int = 0) -> NDArray[np.int64]:
+        """Give back the points set aside by an adjustment (on a projection centre, behind a camera).
+
+        Those decisions judge a point by where gross errors dragged it, not by its rays; a screening
+        that tests the rays themselves (Sequent) runs on them again, and the next adjustment starts
+        them from a fresh intersection of the rays it keeps. Returns the points given back.
+        """
+        aside = {d.index for d in self.decisions if d.kind == "point" and d.action == "dropped"
+                 and d.group in (ASIDE_CENTRE, ASIDE_BEHIND)}
+        back = np.array(sorted(j for j in aside if self.weights.dropped_points[j]), np.int64)
+        o = self.base.obs
+        rays = np.bincount(o.pt_idx[self.weights.image_weight > 0], minlength=self.base.n_points)
+        back = back[rays[back] >= 2] if back.size else back
+        for j in back:
+            self.weights.dropped_points[j] = False
+            self.decisions.append(Decision(step, rnd, "point", int(j), -1, int(j), -1, float(rays[j]), np.nan,
+                                           "reinstated", "point"))
+        self._touched.update(int(j) for j in back)
+        return back
 
     def downweight_term(self, term: int, row: int, factor: float, step: str, rnd: int, value=np.nan,
                         redundancy=np.nan, image=-1, component=-1, group="navigation") -> None:

@@ -5,8 +5,11 @@ Every conjugate point is intersected from its rays through the cameras as they a
 1. from every pair of its rays: the "best stereo pair" is the one whose intersection has the smallest
    standard deviation ``sigma_P = s0 sqrt(trace N^-1)`` (``s0`` from the pair's own residuals,
    redundancy 1; ``N`` the 3x3 normal matrix of the point): it combines a long base (small
-   ``N^-1``) and consistent rays (small ``s0``), the paper's three requirements. If even that
-   exceeds the limit the point is bad and all its rays are removed;
+   ``N^-1``) and consistent rays (small ``s0``), the paper's three requirements. Among the pairs
+   within the limit, the one whose two rays each form within-limit pairs with the most other rays
+   of the point is preferred (not with ``pairs_only``; a departure from the paper: a gross error
+   along the epipolar line gives a consistent pair at a wrong height). If even the best pair exceeds the limit the point
+   is bad and all its rays are removed;
 2. then one ray at a time (the one whose addition gives the smallest ``sigma_P``): a ray that
    pushes ``sigma_P`` beyond the limit is a bad image point and removed (and with it every ray
    still left, since the best of them already failed).
@@ -125,8 +128,18 @@ def sequent_screening(problem: BundleProblem, limit_km: float = 10.0, units_per_
         obs2 = np.concatenate([A, B])
         sets = np.concatenate([np.arange(n_pairs)] * 2)
         s = _sigma_p(model, cp, o.cam_idx[obs2], sets, o.xy[obs2], o.sigma[obs2], n_pairs)
-        # best pair per point
-        srt = np.lexsort((s, J))
+        # best pair per point: among the pairs within the limit, the one whose rays agree with the most
+        # other rays of the point, then the smallest sigma. The smallest sigma alone can pick a gross
+        # error along the epipolar line (a consistent pair at a wrong height), and Sequent would then
+        # take out every good ray of the point (bench draw 19: 3 of 5 rays)
+        ok = s <= limit
+        support = (np.bincount(A[ok], minlength=o.n) + np.bincount(B[ok], minlength=o.n)).astype(np.int64)
+        pair_support = np.where(ok, np.minimum(support[A], support[B]), -1)
+        if pairs_only:
+            # the robust start (no limit): the smallest sigma, as the paper; the consensus rule there
+            # changed Baarda-alone starts and drove one draw to redundancy 0
+            pair_support[:] = 0
+        srt = np.lexsort((s, -pair_support, J))
         first = np.ones(srt.size, bool)
         first[1:] = J[srt][1:] != J[srt][:-1]
         k = srt[first]
