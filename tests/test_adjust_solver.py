@@ -233,3 +233,12 @@ def test_numpy_fallbacks_without_numba(monkeypatch):
     assert pr.method == "dense-lapack"
     np.testing.assert_allclose(pr.pt_cov, ref.precision().pt_cov, rtol=1e-5,
                                atol=1e-8 * np.abs(pr.pt_cov).max())
+
+
+def test_sigma0_is_nan_without_redundancy(block, monkeypatch):
+    """Quality control can remove observations until none are redundant: sigma0 is then undefined (NaN),
+    not a ZeroDivisionError (found by the issue-11 benchmark)."""
+    res = solve(block.problem, SolverOptions(ftol=1e-8))
+    assert res.redundancy > 0 and np.isfinite(res.sigma0)
+    monkeypatch.setattr(type(res), "redundancy", property(lambda self: 0))
+    assert np.isnan(res.sigma0)

@@ -67,8 +67,12 @@ class AdjustmentResult:
 
     @property
     def sigma0(self) -> float:
-        """A-posteriori standard deviation of unit weight, ``sqrt(v^T P v / r)`` (dimensionless)."""
-        return float(np.sqrt(2.0 * self.cost / self.redundancy))
+        """A-posteriori standard deviation of unit weight, ``sqrt(v^T P v / r)`` (dimensionless).
+
+        NaN when the block has no redundancy (``r <= 0``: quality control can remove that many observations).
+        """
+        r = self.redundancy
+        return float(np.sqrt(2.0 * self.cost / r)) if r > 0 else float("nan")
 
     # --- residuals -------------------------------------------------------
     def image_residuals(self) -> NDArray:
