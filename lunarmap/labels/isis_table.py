@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import LabelError
-from .pvl import Label, load_label
+from .pvl import Label, label_int, load_label
 
 __all__ = ["read_isis_table", "isis_table_names"]
 
@@ -25,20 +25,6 @@ _TYPES = {"Double": "f8", "Integer": "i4", "Real": "f4"}
 def isis_table_names(label: Label) -> list[str]:
     """Names of the tables described in a cube label."""
     return [str(t.get("Name", "")) for t in label.all("Table") if isinstance(t, Label)]
-
-
-def _count(value: Any, what: str, minimum: int) -> int:
-    """A non-negative integer of the table label (``what`` names it), at least ``minimum``."""
-    try:
-        number = float(value)
-        if isinstance(value, bool) or not number.is_integer():
-            raise ValueError
-        out = int(number)
-    except (TypeError, ValueError, OverflowError):
-        raise LabelError(f"{what} {value!r:.60} is not an integer") from None
-    if out < minimum:
-        raise LabelError(f"{what} {out} is less than {minimum}")
-    return out
 
 
 def read_isis_table(path: str | os.PathLike[str], name: str) -> tuple[dict[str, np.ndarray], Label]:
@@ -78,7 +64,7 @@ def read_isis_table(path: str | os.PathLike[str], name: str) -> tuple[dict[str, 
         ftype = str(f.get("Type", ""))
         if ftype not in _TYPES:
             raise LabelError(f"{where}: unsupported field type {ftype!r}")
-        fields.append((str(f["Name"]), order + _TYPES[ftype], _count(f.get("Size", 1), f"{where}: field Size", 1)))
+        fields.append((str(f["Name"]), order + _TYPES[ftype], label_int(f.get("Size", 1), f"{where}: field Size", 1)))
     if not fields:
         raise LabelError(f"{where}: no Field groups")
     names = [n for n, _, _ in fields]
@@ -91,9 +77,9 @@ def read_isis_table(path: str | os.PathLike[str], name: str) -> tuple[dict[str, 
     for key in ("StartByte", "Bytes", "Records"):
         if key not in t:
             raise LabelError(f"{where} lacks {key}")
-    start = _count(t["StartByte"], f"{where}: StartByte", 1) - 1
-    nbytes = _count(t["Bytes"], f"{where}: Bytes", 0)
-    records = _count(t["Records"], f"{where}: Records", 0)
+    start = label_int(t["StartByte"], f"{where}: StartByte", 1) - 1
+    nbytes = label_int(t["Bytes"], f"{where}: Bytes", 0)
+    records = label_int(t["Records"], f"{where}: Records", 0)
     if records * dtype.itemsize != nbytes:
         raise LabelError(f"table {name} of {os.fspath(path)}: {records} records of {dtype.itemsize} bytes "
                          f"do not make the stated {nbytes} bytes")

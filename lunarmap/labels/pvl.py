@@ -19,7 +19,7 @@ from typing import Any, Iterator
 
 from ..errors import LabelError, LabelKeywordError
 
-__all__ = ["Label", "Quantity", "load_label", "parse_label"]
+__all__ = ["Label", "Quantity", "load_label", "parse_label", "label_int"]
 
 
 class Quantity(float):
@@ -277,3 +277,25 @@ def load_label(path: str | os.PathLike[str]) -> Label:
     if m:
         text = text[: m.end()]
     return parse_label(text, p)
+
+
+def label_int(value: Any, what: str, minimum: int | None = None, maximum: int | None = None) -> int:
+    """A label value as an integer in ``[minimum, maximum]``; ``what`` names it (and its file) in the message.
+
+    Raises
+    ------
+    LabelError
+        Not an integer (``1D5``, ``End``, ``2.5``, a boolean) or out of range.
+    """
+    try:
+        number = float(value)
+        if isinstance(value, bool) or not number.is_integer():
+            raise ValueError
+        out = int(number)
+    except (TypeError, ValueError, OverflowError):
+        raise LabelError(f"{what} {value!r:.60} is not an integer") from None
+    if minimum is not None and out < minimum:
+        raise LabelError(f"{what} {out} is less than {minimum}")
+    if maximum is not None and out > maximum:
+        raise LabelError(f"{what} {out} is more than {maximum}")
+    return out

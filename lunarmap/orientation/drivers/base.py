@@ -19,6 +19,7 @@ import numpy as np
 
 from ...errors import LabelError, LabelKeywordError, UnknownInstrumentError
 from ...labels import Label
+from ...labels.pvl import label_int
 from ...spice import queries as q
 from ..isd import ImageSupport, RotationTable, line_scan_epochs
 from ..rotation import matrix_to_quat
@@ -108,18 +109,7 @@ class Driver:
 
     def as_int(self, value: Any, what: str, minimum: int | None = None, maximum: int | None = None) -> int:
         """A label value as an integer (``what`` names it in the message), in ``[minimum, maximum]``."""
-        try:
-            number = float(value)
-            if isinstance(value, bool) or not number.is_integer():
-                raise ValueError
-            out = int(number)
-        except (TypeError, ValueError, OverflowError):
-            raise LabelError(f"label {self.source}: {what} {value!r:.60} is not an integer") from None
-        if minimum is not None and out < minimum:
-            raise LabelError(f"label {self.source}: {what} {out} is less than {minimum}")
-        if maximum is not None and out > maximum:
-            raise LabelError(f"label {self.source}: {what} {out} is more than {maximum}")
-        return out
+        return label_int(value, f"label {self.source}: {what}", minimum, maximum)
 
     def as_float(self, value: Any, what: str) -> float:
         """A label value as a finite float (``what`` names it in the message)."""
