@@ -45,12 +45,11 @@ def _probe_fork(data: bytes, timeout: float) -> str:
 
     pid = os.fork()
     if pid == 0:  # child: only the open, then leave without running the parent's exit handlers
-        code = 0
         try:
             netCDF4.Dataset("probe", mode="r", memory=data).close()
         except BaseException:  # noqa: BLE001 - an exception is the parent's to report, not a hang
-            code = 0
-        os._exit(code)
+            pass
+        os._exit(0)
     deadline = time.monotonic() + timeout
     pause = 0.0005
     while True:

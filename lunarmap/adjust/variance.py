@@ -319,6 +319,15 @@ def _apply_group_scale(w: Weights, groups: ObservationGroups, step: NDArray) -> 
         f[gt >= 0] *= step[gt[gt >= 0]]
 
 
+def _weak_group(groups: ObservationGroups, r: NDArray, n: NDArray, j: int,
+                min_redundancy: float) -> VarianceComponentError:
+    """The error for group ``j``, whose redundancy is too small for its variance component."""
+    return VarianceComponentError(
+        f"group {groups.names[j]!r} has redundancy {r[j]:.2f} ({int(n[j])} observations): its variance "
+        f"component cannot be estimated (needs >= {min_redundancy:g}); merge it with another group, or "
+        f"keep its a-priori sigma (on_weak='keep')")
+
+
 def estimate_variance_components(problem: BundleProblem, groups: ObservationGroups,
                                  options: SolverOptions | None = None, weights: Weights | None = None,
                                  estimate: NDArray | None = None, rounds: int = 60, tol: float = 1e-3,
@@ -384,11 +393,7 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
     few = est & (n <= min_redundancy)          # a group's redundancy never exceeds its observation count
     if few.any():
         if on_weak == "raise":
-            j = int(np.argmax(few))
-            raise VarianceComponentError(
-                f"group {groups.names[j]!r} has redundancy {r[j]:.2f} ({int(n[j])} observations): its variance "
-                f"component cannot be estimated (needs >= {min_redundancy:g}); merge it with another group, or "
-                f"keep its a-priori sigma (on_weak='keep')")
+            raise _weak_group(groups, r, n, int(np.argmax(few)), min_redundancy)
         est &= ~few
     converged = False
     # Anderson acceleration of the fixed-point iteration x <- x + log f(x) on the log variance
@@ -423,11 +428,7 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
                 converged = True
                 break
             if on_weak == "raise":
-                j = int(np.argmax(weak))
-                raise VarianceComponentError(
-                    f"group {groups.names[j]!r} has redundancy {r[j]:.2f} ({int(n[j])} observations): its variance "
-                    f"component cannot be estimated (needs >= {min_redundancy:g}); merge it with another group, or "
-                    f"keep its a-priori sigma (on_weak='keep')")
+                raise _weak_group(groups, r, n, int(np.argmax(weak)), min_redundancy)
             est &= ~weak
             if on_weak == "keep":
                 # back to the a-priori sigma of the weak groups, estimate the others again
