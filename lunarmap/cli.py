@@ -111,6 +111,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
               + " ".join(f"{v:.3f}" for v in s["check_rms_before_m"]) + ", after "
               + " ".join(f"{v:.3f}" for v in s["check_rms_after_m"])
               + f" (errors / posterior sigma: RMS {s['check_normalized_rms']:.2f})")
+    from .workflows.report import qc_text
+
+    if qc_text(s):
+        print(qc_text(s) + f"; decisions in {result.outputs['adjustment'] / 'qc.txt'}")
     if result.report is not None:
         print(f"report {result.report}")
     return 0

@@ -64,6 +64,7 @@ class DemoReport:
     reload_px: float = float("nan")
     rpc_check_rms_px: dict[str, float] = field(default_factory=dict)
     rpc_adjusted_check_rms_px: dict[str, float] = field(default_factory=dict)
+    quality_control: str = ""
     seconds: dict[str, float] = field(default_factory=dict)
     files: dict[str, Path] = field(default_factory=dict)
 
@@ -78,6 +79,7 @@ class DemoReport:
             f"  tie points from the matcher: {self.n_tie_points} points, {self.n_observations} image observations",
             f"  adjustment on the rigorous cameras: sigma0 {self.sigma0:.3f} (tie-point sigma x "
             f"{self.tie_sigma_scale:.2f} from variance-component estimation)",
+            *([f"  {self.quality_control}"] if self.quality_control else []),
             "  check points vs truth, RMS along-track / cross-track / height / 3-D (m):",
             f"    before (navigation): {b[0]:8.3f} {b[1]:8.3f} {b[2]:8.3f} {b3:8.3f}",
             f"    after (adjusted):    {a[0]:8.3f} {a[1]:8.3f} {a[2]:8.3f} {a3:8.3f}   ({b3 / a3:.0f}x smaller)",
@@ -127,6 +129,7 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
     from .simulate import block_cameras
     from .synthetic import open_block_mission
     from .workflows import run, write_example
+    from .workflows.report import qc_text
 
     out = Path(output)
     t = time.perf_counter()
@@ -175,7 +178,7 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
         camera_error_before=float(np.sqrt(np.mean(np.sum((p_nav - p_true) ** 2, axis=1)))),
         camera_error_after=float(np.sqrt(np.mean(np.sum((p_adj - p_true) ** 2, axis=1)))),
         camera_normalized_rms=float(np.sqrt(np.mean(z ** 2))), reload_position_mm=1e3 * d_pos, reload_px=d_px,
-        rpc_check_rms_px=rpc_rms, rpc_adjusted_check_rms_px=rpc_adj_rms, seconds=seconds,
+        rpc_check_rms_px=rpc_rms, rpc_adjusted_check_rms_px=rpc_adj_rms, quality_control=qc_text(s), seconds=seconds,
         files={"metakernel": result.outputs["metakernel"], "tiepoints": result.outputs["tiepoints"],
                "report": result.report or Path(), "config": config, "navigation": bm.navigation_metakernel,
                "truth": bm.truth_metakernel})

@@ -333,3 +333,33 @@ def test_sequent_best_pair_is_the_one_most_rays_agree_with():
     assert 140 in large and np.flatnonzero(m.pt_idx == j).size == 5
     good = np.setdiff1d(np.flatnonzero(m.pt_idx == j), [140])
     assert seq.keep[good].all()                              # the good rays of that point stay
+
+
+def test_robust_reweighting_acts_only_on_the_observations_given(blunder_sim):
+    """``robust={"observations": mask}`` (the run's tie points, not the measured control and check points):
+    observations outside the mask keep their weights and are never removed by the robust step, whatever their
+    residuals; the large errors inside it are still found."""
+    pb = dlr_problem(blunder_sim)
+    large = blunder_sim.blunders.image_obs[:10]
+    mask = np.ones(pb.obs.n, bool)
+    mask[large[:5]] = False                   # five of the large errors outside the robust step's reach
+    qc = quality_control(pb, ("robust",), options=QCOptions(solver=OPTS, robust={"observations": mask}))
+    removed = {d.index for d in qc.report.decisions if d.step == "robust" and d.action == "removed"}
+    assert not removed & set(large[:5].tolist())
+    assert set(large[5:].tolist()) <= removed
+    with pytest.raises(QualityControlInputError, match="one flag per image observation"):
+        quality_control(pb, ("robust",), options=QCOptions(solver=OPTS, robust={"observations": mask[:-1]}))
+
+
+def test_variance_components_out_of_rounds_keep_weak_groups_at_their_a_priori_sigma():
+    """Stopped by ``rounds`` before the weak groups were decided on, ``on_weak="keep"`` still leaves every group
+    below ``min_redundancy`` at its a-priori sigma (scale exactly 1, not estimated) -- a run's navigation groups
+    of one image each have almost no redundancy, and following their noisy factors down made the weights explode."""
+    sim = dlr_block(seed=2, example="I")
+    pb = dlr_problem(sim)
+    groups = observation_groups(pb, image_group=sim.block.camera)
+    vc = estimate_variance_components(pb, groups, OPTS, rounds=2, min_redundancy=20.0, on_weak="keep")
+    weak = ~(vc.redundancy >= 20.0)
+    assert weak.any() and not vc.converged
+    assert np.all(~vc.estimated[weak]) and np.all(vc.scale[weak] == 1.0)
+    assert np.all(vc.estimated[~weak]) and np.all(np.isfinite(vc.scale))

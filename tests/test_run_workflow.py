@@ -67,6 +67,23 @@ def test_serial_run_adjusts_the_block(serial):
         assert ds.attrs["lunarmap_version"] and "navigation.tm" not in ds.attrs["kernels"]
     html = serial.report.read_text()
     assert html.count("data:image/png;base64,") == 4 and "sigma0" in html
+    # the example's quality control (data snooping): its report beside the adjustment, in the summary and page
+    q = s["qc"]
+    assert q["steps"] == ["baarda"] and q["image_observations"] == s["n_observations"]
+    assert q["image_observations_removed"] < 0.2 * q["image_observations"]
+    # image measurements of control and check points are tested like any other: a few may go, not many
+    measured = sum(q["removed_by_point_type"].get(k, 0) for k in ("control", "check"))
+    assert measured <= 0.1 * int(np.sum(xr.open_dataset(out["adjustment"] / "residuals.nc")["point_type"].values
+                                        != "tie")) and q["max_w"] <= 4.0
+    with xr.open_dataset(out["adjustment"] / "qc.nc") as ds:
+        removed = int(np.sum(ds["action"].values.astype(str) == "removed"))
+        reinstated = int(np.sum(ds["action"].values.astype(str) == "reinstated"))
+    with xr.open_dataset(out["adjustment"] / "residuals.nc") as ds:
+        flags = ds["qc_removed"].values
+        assert np.all(ds["weight_factor"].values[flags] == 0.0) and np.all(ds["weight_factor"].values[~flags] > 0)
+    assert int(flags.sum()) == q["image_observations_removed"] == removed - reinstated
+    assert "quality control: steps baarda" in (out["adjustment"] / "qc.txt").read_text()
+    assert "<h2>Quality control</h2>" in html
 
 
 def test_rerun_reuses_everything_and_a_changed_parameter_reruns_only_what_depends_on_it(example, serial):
@@ -78,6 +95,18 @@ def test_rerun_reuses_everything_and_a_changed_parameter_reruns_only_what_depend
     counts = res.counts()
     assert counts["adjust"] == (1, 0) and counts["kernels"] == (1, 0)
     assert all(counts[s][0] == 0 for s in ("isd", "rpc", "detect", "match", "tiepoints"))
+    # without quality control: only the adjustment and what follows it rerun, and nothing is removed
+    text = example.read_text()
+    plain = _config(example, "serial", **{text[text.index("[adjust.qc]"):text.index("[report]")]: ""})
+    res = run(plain, scheduler="sync", report=False)
+    counts = res.counts()
+    assert counts["adjust"] == (1, 0) and all(counts[s][0] == 0 for s in ("isd", "rpc", "detect", "match", "tiepoints"))
+    assert "qc" not in res.summary and not (res.outputs["adjustment"] / "qc.nc").exists()
+    # the removals did not cost accuracy: check points of the quality-controlled run within 1.2x of the plain run's
+    qc3, plain3 = (float(np.sqrt(np.sum(np.square(r.summary["check_rms_after_m"])))) for r in (serial, res))
+    assert qc3 < 1.2 * plain3
+    # the outputs of the quality-controlled run back in place for the other tests (from the store: nothing computed)
+    assert run(serial.config, scheduler="sync", report=False).computed == 0
 
 
 def test_interrupted_run_resumes_with_only_the_unfinished_steps(example, monkeypatch):
@@ -209,6 +238,18 @@ def test_bad_configurations_are_named(example, tmp_path):
          "images\\[0\\].pixels.*does not exist"),
         (base.replace('offset = "observed"', 'offset = "sometimes"'), "adjust.navigation.offset must be one of"),
         (base.replace("[run]", "[run"), "not valid TOML"),
+        (base.replace('steps = ["baarda"]', 'steps = ["robust", "snoop"]'), "adjust.qc.steps must be"),
+        (base.replace('steps = ["baarda"]', 'steps = ["baarda", "baarda"]'), "adjust.qc.steps must be"),
+        (base.replace("baarda_limit = 4.0", "baarda_limit = 0.0"), "adjust.qc.baarda_limit must be > 0"),
+        (base.replace('robust_function = "danish"', 'robust_function = "tukey"'),
+         "adjust.qc.robust_function must be one of"),
+        (base.replace('robust_scale = "mad"', 'robust_scale = "iqr"'), "adjust.qc.robust_scale must be one of"),
+        (base.replace("baarda_limit = 4.0", "baarda_limit = 4.0\nalpha = 0.001"), "unknown key adjust.qc.alpha"),
+        (base[:base.index("[adjust.navigation]")] + base[base.index("[adjust.qc]"):].replace(
+            'steps = ["baarda"]', 'steps = ["offsets"]'), "there are no navigation observations"),
+        # every navigation group of the example has one image: an offset of a group cannot be estimated
+        (base.replace('steps = ["baarda"]', 'steps = ["baarda", "offsets"]'),
+         "no navigation group has 2 or more images"),
     ]
     for k, (text, match) in enumerate(cases):
         p = example.parent / f"bad{k}.toml"

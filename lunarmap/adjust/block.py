@@ -142,7 +142,7 @@ def navigation_observations(model: SensorImageModel, spec: NavigationSpec, names
 
     return NavigationObservations(np.zeros((n, p)), sigma, orbit, t, offset=modes(spec.offset),
                                   drift=modes(spec.drift), offset_sigma=pad(spec.offset_sigma),
-                                  drift_sigma=pad(spec.drift_sigma), name="navigation")
+                                  drift_sigma=pad(spec.drift_sigma), name="navigation", orbit_names=list(groups))
 
 
 @dataclass

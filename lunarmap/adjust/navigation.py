@@ -57,10 +57,12 @@ class NavigationObservations:
         Sigma of the pseudo-observations when ``"observed"`` (units per parameter; drift per unit of ``s``).
     name : str
         Group name used in residual statistics.
+    orbit_names : sequence of str, optional
+        A label of every orbit (e.g. the run's navigation groups), for reports; default the orbit index.
     """
 
     def __init__(self, observed, sigma, orbit, s=None, offset: str = "fixed", drift: str = "fixed",
-                 offset_sigma=None, drift_sigma=None, name: str = "navigation"):
+                 offset_sigma=None, drift_sigma=None, name: str = "navigation", orbit_names=None):
         obs = np.asarray(observed, dtype=float)
         n, p = obs.shape
         sig = np.array(np.broadcast_to(np.asarray(sigma, dtype=float), (n, p)))
@@ -91,6 +93,10 @@ class NavigationObservations:
         self.offset_sigma = self._pseudo_sigma("offset", offset_sigma, offset_modes, p)
         self.drift_sigma = self._pseudo_sigma("drift", drift_sigma, drift_modes, p)
         self.name = name
+        if orbit_names is not None and len(orbit_names) != self.n_orbits:
+            raise AdjustmentInputError(f"orbit_names needs {self.n_orbits} labels, got {len(orbit_names)}")
+        self.orbit_names = [str(x) for x in orbit_names] if orbit_names is not None else \
+            [str(k) for k in range(self.n_orbits)]
         self.n_extra = 2 * self.n_orbits * p   # [offsets (n_orb, p) | drifts (n_orb, p)]
         self.n_obs_scalar = int(used.sum()) + int(np.sum(offset_modes == "observed")) + \
             int(np.sum(drift_modes == "observed"))
@@ -136,7 +142,7 @@ class NavigationObservations:
                                       self._sigma if sigma is None else sigma, self.orbit, self.s,
                                       self.offset_modes if offset is None else offset,
                                       self.drift_modes if drift is None else drift,
-                                      self.offset_sigma, self.drift_sigma, self.name)
+                                      self.offset_sigma, self.drift_sigma, self.name, self.orbit_names)
 
     def row_table(self) -> dict:
         """What every row of :meth:`linearize` observes.

@@ -219,11 +219,12 @@ def observation_groups(problem: BundleProblem, image_group: NDArray | None = Non
             obs_rows = rt["kind"] == 0
             kinds = np.array([_kind_of(param_names[j]) if j < len(param_names) else f"p{j}" for j in rt["param"]])
             label = getattr(t, "name", "navigation")
+            orbit_names = getattr(t, "orbit_names", None)
             for orb in np.unique(rt["orbit"][obs_rows]):
                 for kd in sorted(set(kinds[obs_rows & (rt["orbit"] == orb)])):
                     sel = obs_rows & (rt["orbit"] == orb) & (kinds == kd)
                     g[sel] = len(names)
-                    names.append(f"{label} {kd} orbit {int(orb)}")
+                    names.append(f"{label} {kd} orbit {orbit_names[orb] if orbit_names else int(orb)}")
         terms.append(g)
     return ObservationGroups(names, img, ctl, terms)
 
@@ -406,8 +407,11 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
     scales: list[NDArray] = []
     for _ in range(max(rounds, 1)):
         f, r, _, n = group_variance_factors(result, groups)
-        # a group with (numerically) no redundancy in this round cannot move: its factor is 0 / 0
-        live = est & (r > 1e-9 * np.maximum(n, 1)) & np.isfinite(f) & (f > 0)
+        # a group with (numerically) no redundancy in this round cannot move: its factor is 0 / 0; one with
+        # almost none cannot shrink either -- its factor is noise, and following it down makes the weights
+        # explode within a few rounds (it can grow: a too-small sigma is what takes the redundancy away)
+        live = (est & (r > 1e-9 * np.maximum(n, 1)) & np.isfinite(f) & (f > 0)
+                & ~((r < BOUNDARY_REDUNDANCY) & (f < 1.0)))
         if saved is not None and (live != est).any():
             # an accelerated step overshot into a group without redundancy: back to the plain iteration
             w, result, x, total, f, r, n, live = saved
@@ -422,7 +426,9 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
             last = np.array(scales[-6:])
             shrinking = np.all(np.diff(last, axis=0) < 0.0, axis=0)
         collapsed = est & (r < BOUNDARY_REDUNDANCY) & (f < 1.0) & shrinking
-        if collapsed.any() or (np.all(np.abs(f[live] - 1.0) <= tol) and live.any()):
+        # groups below the redundancy needed do not hold the others up (they are decided on below)
+        settled = live & (r >= min_redundancy)
+        if collapsed.any() or (np.all(np.abs(f[settled] - 1.0) <= tol) and settled.any()):
             weak = est & (~(r >= min_redundancy) | collapsed)
             if not weak.any():
                 converged = True
@@ -460,6 +466,16 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
         _apply_group_scale(w, groups, step)
         result = solve(reweighted_problem(problem, w, result.cam_params, result.points, terms), opts)
     f, r, _, n = group_variance_factors(result, groups)
+    weak = est & ~(r >= min_redundancy)
+    if not converged and on_weak != "raise" and weak.any():
+        # out of rounds with groups still below the redundancy needed: they are not estimated
+        est &= ~weak
+        if on_weak == "keep":
+            back = np.where(weak, 1.0 / total, 1.0)
+            total *= back
+            _apply_group_scale(w, groups, back)
+            result = solve(reweighted_problem(problem, w, result.cam_params, result.points, terms), opts)
+            f, r, _, n = group_variance_factors(result, groups)
     if not converged and on_weak == "raise" and np.any(est & ~(r >= min_redundancy)):
         j = int(np.argmax(est & ~(r >= min_redundancy)))
         raise VarianceComponentError(

@@ -45,6 +45,17 @@ Layout (every relative path is taken relative to the configuration file's folder
     offset_sigma = [50e-6, 50e-6, 50e-6, 50.0, 50.0, 50.0]     # rad, rad, rad, m, m, m
     drift_sigma = [1e-6, 1e-6, 1e-6, 1.0, 1.0, 1.0]           # rad/s, m/s
 
+    [adjust.qc]                      # optional: quality control of the adjustment (lunarmap.adjust.quality_control)
+    steps = ["baarda"]               # in this order; any of "sequent", "robust", "baarda", "variance", "offsets"
+                                     # (["robust", "baarda"] for tie points with many mismatches)
+    sequent_limit_km = 0.05          # Sequent: rays whose intersections disagree by more are removed
+    robust_function = "danish"       # "danish" | "huber" | "cauchy"
+    robust_scale = "mad"             # residuals normalised by the a-priori sigmas ("apriori") or their robust spread
+    baarda_limit = 4.0               # w-test limit of the data snooping
+    baarda_per_round = "point"       # "one" (largest w-test per round) | "point" (largest per point per round)
+    baarda_sigma0 = "aposteriori"    # w-tests with the a-priori sigma0 (1) or the adjustment's estimate
+    downweight_factor = 5.0          # failing navigation / control observations: weight divided by this
+
     [report]
     html = true
 
@@ -70,7 +81,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["ImageSpec", "NavigationConfig", "RunConfig", "load_config", "config_from_dict"]
+__all__ = ["ImageSpec", "NavigationConfig", "QCConfig", "RunConfig", "load_config", "config_from_dict"]
 
 _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 
@@ -100,6 +111,21 @@ class NavigationConfig:
 
 
 @dataclass(frozen=True)
+class QCConfig:
+    """Quality control of the adjustment (see :func:`lunarmap.adjust.quality_control`); lengths in km as the
+    DLR paper gives the Sequent limit."""
+
+    steps: tuple[str, ...] = ("baarda",)
+    sequent_limit_km: float = 0.05
+    robust_function: str = "danish"
+    robust_scale: str = "mad"
+    baarda_limit: float = 4.0
+    baarda_per_round: str = "point"
+    baarda_sigma0: str = "aposteriori"
+    downweight_factor: float = 5.0
+
+
+@dataclass(frozen=True)
 class RunConfig:
     """A validated run configuration (see the module docstring)."""
 
@@ -119,6 +145,7 @@ class RunConfig:
     estimate_tie_variance: bool = True
     ftol: float = 1e-10
     navigation: NavigationConfig | None = None
+    qc: QCConfig | None = None
     html: bool = True
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -139,12 +166,16 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], bool]]] = {
     "rpc": {"enabled": (bool, False), "height_range": (list, False)},
     "tiepoints": {"cell": (int, False), "search": ((int, float), False), "min_overlap": ((int, float), False)},
     "adjust": {"degree": (int, False), "estimate_tie_variance": (bool, False), "ftol": ((int, float), False),
-               "navigation": (dict, False)},
+               "navigation": (dict, False), "qc": (dict, False)},
     "report": {"html": (bool, False)},
 }
 _NAV = {"position_sigma": ((int, float), True), "attitude_sigma": ((int, float), True),
         "position_rate_sigma": ((int, float), False), "attitude_rate_sigma": ((int, float), False),
         "offset": (str, False), "drift": (str, False), "offset_sigma": (list, False), "drift_sigma": (list, False)}
+_QC = {"steps": (list, False), "sequent_limit_km": ((int, float), False), "robust_function": (str, False),
+       "robust_scale": (str, False), "baarda_limit": ((int, float), False), "baarda_per_round": (str, False),
+       "baarda_sigma0": (str, False),
+       "downweight_factor": ((int, float), False)}
 _IMAGE = {"name": (str, True), "label": (str, True), "pixels": (str, True), "group": ((str, int), False)}
 
 
@@ -182,6 +213,39 @@ def _numbers(v: list, n: int, key: str, src: str) -> tuple[float, ...]:
     if len(v) != n or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
         raise ConfigError(f"{src}: {key} must be an array of {n} numbers, got {v!r}")
     return tuple(float(x) for x in v)
+
+
+def _qc_config(q: Mapping[str, Any], navigation: bool, largest_group: int, src: str) -> QCConfig:
+    from ..adjust.qc import STEPS, WEIGHT_FUNCTIONS
+
+    _check_table(q, _QC, "adjust.qc", src)
+    d = QCConfig()
+    steps = tuple(q.get("steps", d.steps))
+    if any(not isinstance(s, str) or s not in STEPS for s in steps) or len(set(steps)) != len(steps):
+        raise ConfigError(f"{src}: adjust.qc.steps must be distinct names of {list(STEPS)}, got {list(steps)}")
+    if "offsets" in steps and not navigation:
+        raise ConfigError(f"{src}: adjust.qc.steps has 'offsets' but there are no navigation observations "
+                          "([adjust.navigation])")
+    if "offsets" in steps and largest_group < 2:
+        raise ConfigError(f"{src}: adjust.qc.steps has 'offsets' but no navigation group has 2 or more images: an "
+                          "offset of a group of one image cannot be told from that image's own navigation error")
+    for key in ("sequent_limit_km", "baarda_limit"):
+        if key in q and not q[key] > 0:
+            raise ConfigError(f"{src}: adjust.qc.{key} must be > 0, got {q[key]!r}")
+    if "downweight_factor" in q and not q["downweight_factor"] > 1:
+        raise ConfigError(f"{src}: adjust.qc.downweight_factor must be > 1, got {q['downweight_factor']!r}")
+    fn = q.get("robust_function", d.robust_function)
+    if fn not in WEIGHT_FUNCTIONS:
+        raise ConfigError(f"{src}: adjust.qc.robust_function must be one of {sorted(WEIGHT_FUNCTIONS)}, got {fn!r}")
+    per_round = q.get("baarda_per_round", d.baarda_per_round)
+    if per_round not in ("one", "point"):
+        raise ConfigError(f"{src}: adjust.qc.baarda_per_round must be 'one' or 'point', got {per_round!r}")
+    for key, allowed in (("robust_scale", ("apriori", "mad")), ("baarda_sigma0", ("apriori", "aposteriori"))):
+        if key in q and q[key] not in allowed:
+            raise ConfigError(f"{src}: adjust.qc.{key} must be one of {list(allowed)}, got {q[key]!r}")
+    return QCConfig(steps, float(q.get("sequent_limit_km", d.sequent_limit_km)), fn,
+                    q.get("robust_scale", d.robust_scale), float(q.get("baarda_limit", d.baarda_limit)), per_round,
+                    q.get("baarda_sigma0", d.baarda_sigma0), float(q.get("downweight_factor", d.downweight_factor)))
 
 
 def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",
@@ -242,6 +306,12 @@ def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",
         for key, mode in (("offset", nav.offset), ("drift", nav.drift)):
             if mode == "observed" and getattr(nav, f"{key}_sigma") is None:
                 raise ConfigError(f"{src}: adjust.navigation.{key} = 'observed' needs adjust.navigation.{key}_sigma")
+    qc = None
+    if "qc" in adj:
+        per_group: dict[str, int] = {}
+        for im in images:
+            per_group[im.group or im.name] = per_group.get(im.group or im.name, 0) + 1
+        qc = _qc_config(adj["qc"], nav is not None, max(per_group.values()), src)
     height_range = _numbers(rpc["height_range"], 2, "rpc.height_range", src) if "height_range" in rpc \
         else (-300.0, 300.0)
     if not height_range[1] > height_range[0]:
@@ -267,7 +337,7 @@ def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",
         points=_path(base_p, d["points"]["path"], "points.path", src) if "points" in d else None,
         rpc_enabled=bool(rpc.get("enabled", True)), rpc_height_range=height_range, cell=cell, search=search,
         min_overlap=min_overlap, degree=degree, estimate_tie_variance=bool(adj.get("estimate_tie_variance", True)),
-        ftol=float(adj.get("ftol", 1e-10)), navigation=nav, html=bool(rep.get("html", True)))
+        ftol=float(adj.get("ftol", 1e-10)), navigation=nav, qc=qc, html=bool(rep.get("html", True)))
 
 
 def load_config(path: str | os.PathLike[str]) -> RunConfig:

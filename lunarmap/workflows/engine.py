@@ -27,7 +27,7 @@ import logging
 import os
 import shutil
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -198,10 +198,12 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
                "drift_sigma": list(n.drift_sigma) if n.drift_sigma else None}
     groups = [im.group for im in cfg.images]
     points = str(cfg.points) if cfg.points is not None else None
-    k_adj = step_key("adjust", [cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, groups, names],
+    qc = None if cfg.qc is None or not cfg.qc.steps else {**asdict(cfg.qc), "steps": list(cfg.qc.steps)}
+    k_adj = step_key("adjust", [cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, groups, names]
+                     + ([qc] if qc is not None else []),
                      [isd_key[n] for n in names] + [k_tie, file_digest(cfg.points) if points else ""])
     adj = node("adjust", k_adj, adjust_step, store, k_adj, names, groups, [isd[n] for n in names], ties, points,
-               cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, attrs)
+               cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, attrs, qc)
     k_ker = step_key("kernels", None, [k_adj, kernels_digest])
     ker = node("kernels", k_ker, kernels_step, store, k_ker, names, adj, [isd[n] for n in names],
                str(cfg.metakernel))

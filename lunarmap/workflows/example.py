@@ -61,6 +61,14 @@ drift = "observed"
 offset_sigma = [50e-6, 50e-6, 50e-6, 50.0, 50.0, 50.0]
 drift_sigma = [1e-6, 1e-6, 1e-6, 1.0, 1.0, 1.0]
 
+[adjust.qc]
+steps = ["baarda"]
+robust_function = "danish"
+robust_scale = "mad"
+baarda_limit = 4.0
+baarda_per_round = "point"
+baarda_sigma0 = "aposteriori"
+
 [report]
 html = true
 """

@@ -19,7 +19,19 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-__all__ = ["write_report"]
+__all__ = ["write_report", "qc_text"]
+
+
+def qc_text(summary: dict[str, Any]) -> str:
+    """One line on the run's quality control (``""`` if it had none): steps, observations removed, sigma0."""
+    q = summary.get("qc")
+    if not q:
+        return ""
+    by = ", ".join(f"{k} {v}" for k, v in q["removed_by_point_type"].items() if v)
+    acted = ", ".join(f"{k}: {v}" for k, v in q["actions"].items()) or "nothing acted on"
+    return (f"quality control ({' -> '.join(q['steps'])}): {q['image_observations_removed']} of "
+            f"{q['image_observations']} image observations removed ({by or 'none'}; {acted}); sigma0 "
+            f"{q['sigma0_first']:.3f} before, {q['sigma0_last']:.3f} after")
 
 
 def _figure(draw: Any, width: float = 6.4, height: float = 4.2) -> bytes:
@@ -134,9 +146,10 @@ def write_report(result: Any) -> Path:
     for name, _, png in images:
         (folder / f"{name}.png").write_bytes(png)
     ptype = res["point_type"].values.astype(str)
+    kept = ~res["qc_removed"].values.astype(bool) if "qc_removed" in res else np.ones(ptype.size, bool)
     groups = []
     for k in ("tie", "control", "check"):
-        m = ptype == k
+        m = (ptype == k) & kept
         if m.any():
             z = res["normalized"].values[m]
             groups.append((k, int(m.sum()), float(np.sqrt(np.mean(v[m] ** 2))), float(np.sqrt(np.mean(z ** 2)))))
@@ -164,6 +177,15 @@ def write_report(result: Any) -> Path:
         ("steps computed / reused", ", ".join(f"{s} {c}/{r}" for s, (c, r) in counts.items())),
     ])
     grow = "".join(f"<tr><td>{k}</td><td>{n}</td><td>{r:.3f}</td><td>{z:.3f}</td></tr>" for k, n, r, z in groups)
+    qc_section = ""
+    if summary.get("qc"):
+        table = (adj / "qc.txt").read_text() if (adj / "qc.txt").exists() else ""
+        lines = table.splitlines()
+        if len(lines) > 80:
+            lines = lines[:80] + [f"... ({len(lines) - 80} more lines in outputs/adjustment/qc.txt; all decisions "
+                                  "in outputs/adjustment/qc.nc)"]
+        qc_section = (f"<h2>Quality control</h2><p>{html.escape(qc_text(summary))}</p>"
+                      f"<pre>{html.escape(chr(10).join(lines))}</pre>")
     figs = "".join(f'<h2>{html.escape(title)}</h2><img alt="{name}" src="data:image/png;base64,'
                    f'{base64.b64encode(png).decode()}">' for name, title, png in images)
     page = f"""<!DOCTYPE html>
@@ -175,6 +197,7 @@ table{{border-collapse:collapse}} tr:nth-child(even){{background:#f2f2f2}} img{{
 <h2>Image residuals per group of points</h2>
 <table><tr><th>group</th><th>observations</th><th>RMS (px)</th><th>normalised RMS</th></tr>{grow}</table>
 {figs}
+{qc_section}
 <h2>Skipped pairs</h2><pre>{html.escape(chr(10).join(summary.get("skipped_pairs", [])) or "none")}</pre>
 <h2>Summary (JSON)</h2><pre>{html.escape(json.dumps(summary, indent=1))}</pre>
 </body></html>

@@ -347,14 +347,21 @@ def tiepoints_step(store: Store, key: str, names: Sequence[str], pairs: Sequence
 @_one_blas_thread
 def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[str], isds: Sequence[Done],
                 ties: Done, points: str | None, degree: int, navigation: dict[str, Any] | None,
-                estimate_tie_variance: bool, ftol: float, attrs: dict[str, Any]) -> Done:
-    """Adjust the block on the images' rigorous cameras; write the results as netCDF and adjusted ISDs."""
+                estimate_tie_variance: bool, ftol: float, attrs: dict[str, Any],
+                qc: dict[str, Any] | None = None) -> Done:
+    """Adjust the block on the images' rigorous cameras; write the results as netCDF and adjusted ISDs.
+
+    With ``qc`` (the fields of :class:`~lunarmap.workflows.config.QCConfig`) the adjustment is quality
+    controlled (:func:`lunarmap.adjust.quality_control`, image groups = the images' navigation groups); the
+    report is written as ``qc.nc`` and ``qc.txt``. The tie points' variance factor is then estimated on
+    what quality control kept, unless its ``variance`` step estimated every group's.
+    """
     t = time.perf_counter()
     if store.has("adjust", key):
         return Done("adjust", key, "", str(store.path("adjust", key)), False)
     from ..adjust import (NavigationSpec, SolverOptions, build_block, merge_networks, network_from_tiepoints,
                           read_network)
-    from ..adjust.block import BlockResult
+    from ..adjust.block import Block, BlockResult
     from ..adjust.export import adjusted_image_support
     from ..adjust.variance import estimate_image_variances
     from ..matching.tiepoints import read_tiepoints
@@ -371,21 +378,45 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
         block = build_block(cams, net, degree=degree, navigation=spec)
         x0 = block.problem.points.copy()
         opts = SolverOptions(ftol=ftol)
-        groups_obs = np.where(block.network.point_type[block.problem.obs.pt_idx] == "tie", 0, 1)
-        est = estimate_image_variances(block.problem, groups_obs, np.array([estimate_tie_variance, False]), opts,
-                                       rounds=5 if estimate_tie_variance else 1)
-        res = BlockResult(block, est.result)
+        qc_out = None
+        problem = block.problem
+        if qc is not None and qc["steps"]:
+            qc_out = _quality_control(block, names, groups, qc, opts)
+            problem = qc_out.problem
+        groups_obs = np.where(block.network.point_type[problem.obs.pt_idx] == "tie", 0, 1)
+        tie_variance = estimate_tie_variance and not (qc_out is not None and "variance" in qc["steps"])
+        if qc_out is not None and not tie_variance:
+            est = None
+            result = qc_out.result
+        else:
+            est = estimate_image_variances(problem, groups_obs, np.array([tie_variance, False]), opts,
+                                           rounds=5 if tie_variance else 1)
+            result = est.result
+        res = BlockResult(Block(block.names, block.model, block.network, result.problem, block.navigation), result)
         adjusted_isds = adjusted_image_support(res, {n: ImageSupport.read_json(d.path) for n, d in zip(names, isds)})
     except LunarmapError as err:
         raise _fail("adjust", "", err) from None
 
     summary = {"sigma0": res.sigma0, "iterations": int(res.result.iterations), "converged": bool(res.converged),
-               "message": res.result.message, "tie_sigma_scale": float(est.scale[0]),
-               "variance_factors": [h.tolist() for h in est.history], "images": list(names),
+               "message": res.result.message, "tie_sigma_scale": float(est.scale[0]) if est is not None else 1.0,
+               "variance_factors": [h.tolist() for h in est.history] if est is not None else [], "images": list(names),
                "n_points": int(block.problem.n_points), "n_observations": int(block.problem.obs.n),
                "groups": {k: list(v) for k, v in res.result.group_quadratic_forms().items()},
                "rms_px": res.result.rms_px(), "solve_seconds": float(res.result.solve_seconds)}
-    has_check = bool(np.any(block.network.point_type == "check"))
+    if qc_out is not None:
+        summary["qc"] = _qc_summary(qc_out, block, names)
+    check_res = res
+    if qc_out is not None:
+        # a check point that quality control left with fewer than 2 rays is not adjusted: it is reported, not scored
+        rays = np.bincount(block.problem.obs.pt_idx[qc_out.ledger.active], minlength=block.problem.n_points)
+        lost = (block.network.point_type == "check") & (rays < 2)
+        if lost.any():
+            import dataclasses
+
+            summary["qc"]["check_points_without_rays"] = block.network.point_id[lost].astype(str).tolist()
+            net_eval = dataclasses.replace(block.network, point_type=np.where(lost, "tie", block.network.point_type))
+            check_res = BlockResult(Block(block.names, block.model, net_eval, result.problem, block.navigation), result)
+    has_check = bool(np.any(check_res.block.network.point_type == "check"))
 
     def write(folder: Path) -> None:
         geo = {"crs": MOON_GEOGRAPHIC_CRS, **attrs}
@@ -399,12 +430,16 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
         resid = res.result.residuals_dataset()
         resid["image_name"] = ("obs", np.asarray(names, dtype=object)[resid["image"].values])
         resid["point_type"] = ("obs", block.network.point_type[resid["point"].values].astype(object))
+        if qc_out is not None:
+            resid["qc_removed"] = ("obs", ~qc_out.ledger.active)
+            qc_out.report.write(folder / "qc.nc")
+            (folder / "qc.txt").write_text(qc_out.report.table() + "\n")
         resid.attrs.update(attrs)
         resid.to_netcdf(folder / "residuals.nc")
         if has_check:
             from ..evaluate import block_check_errors
 
-            before, after = block_check_errors(res, x0), block_check_errors(res)
+            before, after = block_check_errors(check_res, x0), block_check_errors(check_res)
             ds = xr.Dataset({"error_before": before["error"], "error_after": after["error"],
                              "sigma_after": after["sigma"], "normalized_after": after["normalized"],
                              "error_enu_before": before["error_enu"], "error_enu_after": after["error_enu"],
@@ -426,6 +461,50 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
     path = store.write_dir("adjust", key, write)
     return Done("adjust", key, "", str(path), True, time.perf_counter() - t,
                 note=f"sigma0 {summary['sigma0']:.3f}")
+
+
+def _quality_control(block: Any, names: Sequence[str], groups: Sequence[str], qc: dict[str, Any], opts: Any) -> Any:
+    """Quality-controlled adjustment of a run's block (see :func:`adjust_step`)."""
+    from ..adjust.qc import QCOptions, quality_control
+
+    labels = [g or n for n, g in zip(names, groups)]
+    uniq = list(dict.fromkeys(labels))
+    image_group = np.array([uniq.index(g) for g in labels], np.int64)
+    options = QCOptions(
+        sequent_limit_km=qc["sequent_limit_km"], units_per_km=1000.0, solver=opts,
+        # the matcher's tie points; measured control and check points are left to the w-tests
+        robust={"function": qc["robust_function"], "scale": qc["robust_scale"],
+                "observations": block.network.point_type[block.problem.obs.pt_idx] == "tie"},
+        baarda={"limit": qc["baarda_limit"], "per_round": qc["baarda_per_round"], "factor": qc["downweight_factor"],
+                "sigma0": qc["baarda_sigma0"]},
+        # groups the data cannot estimate (e.g. a navigation group without redundancy) keep their sigma
+        variance={"on_weak": "keep", "rounds": 20},
+        # the paper's two stages (candidates from the residuals, then only the significant ones): the forward
+        # selection adjusts once per candidate and round, too slow for a run's dozens of navigation groups
+        offsets={"select": "all"})
+    return quality_control(block.problem, qc["steps"], image_group, [f"image {g}" for g in uniq], options)
+
+
+def _qc_summary(qc_out: Any, block: Any, names: Sequence[str]) -> dict[str, Any]:
+    """The run summary's quality-control figures: counts per step and action, removed per point type."""
+    rep = qc_out.report
+    removed = ~qc_out.ledger.active
+    ptype = block.network.point_type[block.problem.obs.pt_idx]
+    out: dict[str, Any] = {
+        "steps": list(rep.summary.get("steps", [])),
+        "sigma0_first": float(rep.summary.get("sigma0_first", np.nan)),
+        "sigma0_last": float(rep.summary.get("sigma0_last", np.nan)),
+        "actions": {" ".join(k): int(v) for k, v in sorted(rep.counts().items())},
+        "image_observations": int(removed.size),
+        "image_observations_removed": int(removed.sum()),
+        "removed_by_point_type": {t: int(np.sum(removed & (ptype == t))) for t in np.unique(ptype)},
+        "removed_by_image": {n: int(np.sum(removed & (block.problem.obs.cam_idx == i))) for i, n in enumerate(names)},
+    }
+    for k in ("baarda_rounds", "max_w", "untestable", "sequent_points_removed"):
+        if k in rep.summary:
+            v = rep.summary[k]
+            out[k] = float(v) if isinstance(v, (float, np.floating)) else int(v)
+    return out
 
 
 @_one_blas_thread

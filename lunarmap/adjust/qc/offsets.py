@@ -259,5 +259,5 @@ def offset_drift_step(ledger: Ledger, term: int = 0, k1: float = 1.0, k2: float 
     for k, o, j in zip(*np.nonzero(kept)):
         ledger.decisions.append(Decision("offsets", 3, "navigation", int(o), -1, -1, int(j),
                                          float(vals[k, o, j] / sigs[k, o, j]), np.nan,
-                                         f"{['offset', 'drift'][k]} free", f"orbit {int(o)} {names[j]}"))
+                                         f"{['offset', 'drift'][k]} free", f"orbit {nav.orbit_names[o]} {names[j]}"))
     return {"rounds": rounds, "kept": kept}

@@ -76,15 +76,17 @@ def weight_function(name: str) -> tuple[Callable[[NDArray, float], NDArray], flo
                                        f"{', '.join(sorted(WEIGHT_FUNCTIONS))}") from None
 
 
-def _normalised(ledger: Ledger, state: AdjustmentState, scale: str, red: NDArray | None) -> NDArray:
-    """``(n_obs,)`` normalised residual of every image observation (larger coordinate)."""
+def _normalised(ledger: Ledger, state: AdjustmentState, scale: str, red: NDArray | None,
+                subject: NDArray[np.bool_] | None = None) -> NDArray:
+    """``(n_obs,)`` normalised residual of every image observation (larger coordinate); the robust scale
+    (``"mad"``) from the ``subject`` observations."""
     pb = ledger.base
     o = pb.obs
     x = pb.model.project(state.cam_params, o.cam_idx, state.points[o.pt_idx])
     z = (x - o.xy) / (o.sigma * ledger.weights.image_sigma[:, None])
     if red is not None:
         z = z / np.sqrt(np.clip(red, 1e-3, None))
-    act = ledger.active
+    act = ledger.active if subject is None else ledger.active & subject
     s = 1.0
     if scale == "mad":
         s = 1.4826 * float(np.median(np.abs(z[act]))) if act.any() else 1.0
@@ -94,8 +96,13 @@ def _normalised(ledger: Ledger, state: AdjustmentState, scale: str, red: NDArray
 
 def robust_step(ledger: Ledger, function: str = "danish", c: float | None = None, mode: str = "iteration",
                 normalise: str = "sigma", scale: str = "apriori", min_weight: float = 0.1, max_rounds: int = 30,
-                warmup: int = 3, options: SolverOptions | None = None) -> dict:
+                warmup: int = 3, observations: NDArray[np.bool_] | None = None,
+                options: SolverOptions | None = None) -> dict:
     """Robust adjustment of the ledger's problem (module docstring); removes what it rejects.
+
+    ``observations`` (``(n_obs,)`` bool, default all): the image observations the robust weights apply to,
+    e.g. the matcher's tie points; the others (measured control and check points) keep their weights
+    and are left to the data snooping. The ``"mad"`` scale comes from them alone.
 
     Returns
     -------
@@ -121,7 +128,14 @@ def robust_step(ledger: Ledger, function: str = "danish", c: float | None = None
     if not (0.0 < min_weight < 1.0):
         raise QualityControlInputError(f"min_weight must be in (0, 1), got {min_weight!r}")
     base_w = ledger.weights.image_weight.copy()
-    active = ledger.active
+    subject = None
+    if observations is not None:
+        subject = np.asarray(observations, bool)
+        if subject.shape != base_w.shape:
+            raise QualityControlInputError(f"observations needs one flag per image observation ({base_w.size}), "
+                                           f"got shape {subject.shape}")
+    still = ledger.active
+    active = still if subject is None else still & subject
     robust = np.ones_like(base_w)
     red = None
     rounds = 0
@@ -129,12 +143,13 @@ def robust_step(ledger: Ledger, function: str = "danish", c: float | None = None
     calls = {"n": 0}
 
     def weights_for(state: AdjustmentState) -> NDArray:
-        u = _normalised(ledger, state, scale, red)
+        u = _normalised(ledger, state, scale, red, subject)
         # the first reweightings with Huber's convex function: a redescending one applied to the residuals
         # of a solution that large errors still distort cuts good observations off for good
         f = _huber if calls["n"] < warmup else fn
         calls["n"] += 1
-        w = np.where(active, np.maximum(f(u, c), 1e-10), 0.0)   # never exactly 0: a point keeps its rays
+        # never exactly 0: a point keeps its rays; observations not subject to it keep theirs
+        w = np.where(active, np.maximum(f(u, c), 1e-10), np.where(still, 1.0, 0.0))
         return w
 
     if mode == "iteration":
@@ -164,7 +179,7 @@ def robust_step(ledger: Ledger, function: str = "danish", c: float | None = None
             if change < 1e-3:
                 break
             result = ledger.adjust(options)
-    u = _normalised(ledger, ledger.result.state, scale, red)
+    u = _normalised(ledger, ledger.result.state, scale, red, subject)
     reject = np.flatnonzero(active & (robust < min_weight))
     ledger.weights.image_weight = base_w.copy()
     ledger.remove_image(reject, "robust", rounds, value=robust[reject])

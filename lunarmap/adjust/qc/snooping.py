@@ -128,7 +128,8 @@ def _term_info(ledger: Ledger, t: int, row: int) -> tuple[int, int, str]:
     img, par, orb = int(rt["image"][row]), int(rt["param"][row]), int(rt["orbit"][row])
     names = list(getattr(ledger.base.model, "param_names", []))
     kind = "attitude" if par < len(names) and names[par].startswith("w") else "position"
-    return img, par, f"{getattr(term, 'name', 'navigation')} {kind} orbit {orb}"
+    label = term.orbit_names[orb] if getattr(term, "orbit_names", None) else orb
+    return img, par, f"{getattr(term, 'name', 'navigation')} {kind} orbit {label}"
 
 
 def _reinstatable(ledger: Ledger, limit: float, done: set) -> NDArray[np.int64]:
