@@ -272,7 +272,13 @@ def part_scale(sizes: list[str], old: bool, qc_sizes: list[str]) -> None:
 
 # --- tie points from the matcher with mismatches --------------------------------------------------------
 
-def part_mismatches(seed: int, fractions: list[float]) -> None:
+MISMATCH_VARIANTS = {
+    "paper": [(("robust", "baarda"), "paper"), (("sequent", "robust", "baarda"), "paper")],
+    "run": [(("baarda",), "run"), (("robust", "baarda"), "run")],
+}
+
+
+def part_mismatches(seed: int, fractions: list[float], variants=MISMATCH_VARIANTS["paper"]) -> None:
     import tempfile
     import warnings
 
@@ -308,7 +314,7 @@ def part_mismatches(seed: int, fractions: list[float]) -> None:
     emit("mismatches-setup", tie_observations=int(ties.sizes["observation"]), seconds=round(time.perf_counter() - t0, 1),
          load=load())
 
-    def run(frac: float, qc_steps):
+    def run(frac: float, qc_steps, variant: str = "paper"):
         tp = ties.copy(deep=True)
         n = tp.sizes["observation"]
         r = np.random.default_rng(seed + 100 + int(frac * 100))
@@ -326,9 +332,14 @@ def part_mismatches(seed: int, fractions: list[float]) -> None:
         tie = block.network.point_type[block.problem.obs.pt_idx] == "tie"
         t1 = time.perf_counter()
         if qc_steps:
-            qc = quality_control(block.problem, qc_steps, image_group=None, options=QCOptions(
-                solver=SolverOptions(ftol=1e-10), sequent_limit_km=0.02,
-                baarda=dict(per_round="point", limit=4.0)))
+            if variant == "run":      # what `lunarmap run` does with [adjust.qc] (its defaults)
+                opts = QCOptions(solver=SolverOptions(ftol=1e-10), sequent_limit_km=0.05,
+                                 robust=dict(scale="mad", observations=tie),
+                                 baarda=dict(per_round="point", limit=4.0, sigma0="aposteriori"))
+            else:
+                opts = QCOptions(solver=SolverOptions(ftol=1e-10), sequent_limit_km=0.02,
+                                 baarda=dict(per_round="point", limit=4.0))
+            qc = quality_control(block.problem, qc_steps, image_group=None, options=opts)
             result = block_result(qc, block)
             removed = set(qc.removed_image_observations.tolist())
             tie_idx = np.flatnonzero(tie)
@@ -338,7 +349,7 @@ def part_mismatches(seed: int, fractions: list[float]) -> None:
             result = lunarmap.solve(block, SolverOptions(ftol=1e-10))
             found = false = 0
         ck = result.check_points()
-        return dict(fraction=frac, steps=list(qc_steps), mismatched=int(bad.size), found=found, false=false,
+        return dict(fraction=frac, steps=list(qc_steps), variant=variant, mismatched=int(bad.size), found=found, false=false,
                     converged=bool(result.converged), sigma0=round(result.sigma0, 3),
                     check_rms_enu_m=np.round(ck.attrs["rms_m"], 3).tolist(),
                     check_rms_3d_m=round(float(np.sqrt(np.sum(ck.attrs["rms_m"] ** 2))), 3),
@@ -347,8 +358,8 @@ def part_mismatches(seed: int, fractions: list[float]) -> None:
     clean = run(0.0, ())
     emit("mismatches", **clean)
     for frac in fractions:
-        for steps in (("robust", "baarda"), ("sequent", "robust", "baarda")):
-            rec = run(frac, steps)
+        for steps, variant in variants:
+            rec = run(frac, steps, variant)
             rec["ratio_to_clean"] = round(rec["check_rms_3d_m"] / clean["check_rms_3d_m"], 3)
             emit("mismatches", **rec, load=load())
 
@@ -363,6 +374,8 @@ def main(argv=None):
     ap.add_argument("--qc", action="store_true", help="(scale-one) also time a full QC run")
     ap.add_argument("--qc-sizes", nargs="*", default=["large1m"], help="sizes with a full QC run timed")
     ap.add_argument("--fractions", nargs="+", type=float, default=[0.2, 0.5])
+    ap.add_argument("--variants", nargs="+", choices=sorted(MISMATCH_VARIANTS), default=["paper", "run"],
+                    help="mismatch part: QC settings of the paper's simulation and/or of `lunarmap run`")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", help="append the records to this file")
     args = ap.parse_args(argv)
@@ -378,7 +391,7 @@ def main(argv=None):
         elif part == "scale-one":
             part_scale_one(args.sizes[0], args.old, args.qc)
         elif part == "mismatches":
-            part_mismatches(args.seed, args.fractions)
+            part_mismatches(args.seed, args.fractions, [v for k in args.variants for v in MISMATCH_VARIANTS[k]])
     if args.json:
         with open(args.json, "a") as fh:
             for r in RECORDS:

@@ -202,3 +202,20 @@ def test_bad_correction_inputs():
     # a frame camera has no time: the degree asked for by a mixed block is ignored
     assert frame.corrections(degree=2).n_params == 6
     assert NAC_LINE_TIME > 0
+
+
+def test_linescan_point_without_a_time_projects_to_nan_not_an_error():
+    """A ground point for which the line-scan time search finds no finite time (the Newton step divides by a zero
+    slope) projects to NaN in its row only -- as a frame camera's point behind it does -- so that quality
+    control can set it aside; it used to stop the whole block with ``InvalidInputError`` from the orientation."""
+    cam = CAMERAS["nac-lrolrocnac"]
+    corr = cam.corrections(1)
+    X = _points(cam, n=5)[2]
+    good = corr.project(np.zeros(corr.n_params), X)
+    t = corr._solve_time(np.zeros(corr.n_params), X)
+    t[2] = np.nan
+    pix = corr._geometry(np.zeros(corr.n_params), X, t, True)
+    assert np.all(np.isnan(pix[0][2])) and np.all(np.isnan(pix[1][2]))
+    keep = np.arange(5) != 2
+    line = cam.line_times.line(t)
+    np.testing.assert_allclose(np.column_stack([line, pix[0][:, 1]])[keep], good[keep], atol=1e-9)

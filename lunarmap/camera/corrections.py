@@ -413,6 +413,11 @@ class LineScanCorrections:
 
     def _geometry(self, p: Array, X: Array, t: Array, jacobian: bool):
         cam = self.sensor
+        # a point whose time search failed (no finite time: far off the image's plane) projects to NaN,
+        # like a frame camera's point behind it, instead of stopping the block's projection
+        lost = ~np.isfinite(t)
+        if lost.any():
+            t = np.where(lost, self.t_mid, t)
         tau = self.tau(t)
         powers = tau[:, None] ** np.arange(self.degree + 1)[None, :]           # (n, d+1)
         P = p.reshape(self.degree + 1, 2, 3)                                   # [k, (w, c), xyz]
@@ -422,6 +427,11 @@ class LineScanCorrections:
         M = rotvec_to_matrix(w) @ Rt
         v = np.einsum("nij,nj->ni", M, X - cam.eo.position_at(t) - dC)
         pix, dv = pinhole_image(v, cam.interior.focal_length, cam.distortion, self._A, self._b, jacobian)
+        if lost.any():
+            pix = np.where(lost[:, None], np.nan, pix)
+            v = np.where(lost[:, None], np.nan, v)
+            if dv is not None:
+                dv = np.where(lost.reshape((-1,) + (1,) * (dv.ndim - 1)), np.nan, dv)
         return pix, dv, v, M, w, powers
 
     def _residual(self, p: Array, X: Array, t: Array) -> Array:

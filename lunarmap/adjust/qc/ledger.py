@@ -190,7 +190,13 @@ class Ledger:
         """
         o = self.base.obs
         model = pb.model
-        bad_obs = ~np.all(np.isfinite(model.project_indexed(pb.cam_params, o.cam_idx, pb.points, o.pt_idx)), axis=1)
+        # a point without finite coordinates (a diverged iteration) is not projected: a line-scan
+        # camera refuses a NaN ground point instead of returning NaN
+        bad_obs = ~np.all(np.isfinite(pb.points), axis=1)[o.pt_idx]
+        ok = ~bad_obs
+        if ok.any():
+            x = model.project(pb.cam_params, o.cam_idx[ok], pb.points[o.pt_idx[ok]])
+            bad_obs[ok] = ~np.all(np.isfinite(x), axis=1)
         if not bad_obs.any():
             return pb
         bad_pt = np.zeros(self.base.n_points, bool)
