@@ -335,7 +335,7 @@ def part_mismatches(seed: int, fractions: list[float], variants=MISMATCH_VARIANT
             if variant == "run":      # what `lunarmap run` does with [adjust.qc] (its defaults)
                 opts = QCOptions(solver=SolverOptions(ftol=1e-10), sequent_limit_km=0.05,
                                  robust=dict(scale="mad", observations=tie),
-                                 baarda=dict(per_round="point", limit=4.0, sigma0="aposteriori"))
+                                 baarda=dict(per_round="point", limit=4.0, sigma0="robust"))
             else:
                 opts = QCOptions(solver=SolverOptions(ftol=1e-10), sequent_limit_km=0.02,
                                  baarda=dict(per_round="point", limit=4.0))

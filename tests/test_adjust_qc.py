@@ -363,3 +363,23 @@ def test_variance_components_out_of_rounds_keep_weak_groups_at_their_a_priori_si
     assert weak.any() and not vc.converged
     assert np.all(~vc.estimated[weak]) and np.all(vc.scale[weak] == 1.0)
     assert np.all(vc.estimated[~weak]) and np.all(np.isfinite(vc.scale))
+
+
+def test_robust_sigma0_of_the_w_tests_is_the_sigma_the_noise_was_drawn_with(blunder_sim):
+    """``sigma0="robust"``: with the image sigmas claimed 2.5x too small, the robust sigma0 of the w-tests (median
+    standardised residual) is the factor 2.5 the noise was drawn with; on the block with the gross errors,
+    Sequent -> Baarda against it still finds the image errors, where the a-priori sigma0 of 1 would make every good
+    observation suspect."""
+    clean = dlr_problem(dlr_block(seed=3, example="blunders"), sigma_factor=(0.4, 1.0, 1.0, 1.0))
+    led = Ledger(clean)
+    led.adjust(OPTS)
+    t = w_tests(led, "robust")
+    print("robust sigma0", t["sigma0_used"], "a posteriori", t["sigma0"])
+    assert t["sigma0_used"] == pytest.approx(2.5, rel=0.2)
+    pb = dlr_problem(blunder_sim, sigma_factor=(0.4, 1.0, 1.0, 1.0))
+    qc = quality_control(pb, ("sequent", "baarda"), options=QCOptions(solver=OPTS, baarda=dict(sigma0="robust")))
+    s = score(blunder_sim, qc)
+    print("image sigmas x0.4, sequent -> baarda (robust sigma0):", s)
+    assert s["large"] == 10 and s["small"] >= 8 and s["false_images"] <= 5
+    with pytest.raises(QualityControlInputError, match="sigma0 must be"):
+        quality_control(pb, ("baarda",), options=QCOptions(solver=OPTS, baarda=dict(sigma0="median")))

@@ -53,7 +53,8 @@ Layout (every relative path is taken relative to the configuration file's folder
     robust_scale = "mad"             # residuals normalised by the a-priori sigmas ("apriori") or their robust spread
     baarda_limit = 4.0               # w-test limit of the data snooping
     baarda_per_round = "point"       # "one" (largest w-test per round) | "point" (largest per point per round)
-    baarda_sigma0 = "aposteriori"    # w-tests with the a-priori sigma0 (1) or the adjustment's estimate
+    baarda_sigma0 = "robust"         # w-tests against sigma0 = 1 ("apriori"), the adjustment's ("aposteriori") or
+                                     # the median standardised residual's ("robust": gross errors do not inflate it)
     downweight_factor = 5.0          # failing navigation / control observations: weight divided by this
 
     [report]
@@ -121,7 +122,7 @@ class QCConfig:
     robust_scale: str = "mad"
     baarda_limit: float = 4.0
     baarda_per_round: str = "point"
-    baarda_sigma0: str = "aposteriori"
+    baarda_sigma0: str = "robust"
     downweight_factor: float = 5.0
 
 
@@ -240,7 +241,7 @@ def _qc_config(q: Mapping[str, Any], navigation: bool, largest_group: int, src: 
     per_round = q.get("baarda_per_round", d.baarda_per_round)
     if per_round not in ("one", "point"):
         raise ConfigError(f"{src}: adjust.qc.baarda_per_round must be 'one' or 'point', got {per_round!r}")
-    for key, allowed in (("robust_scale", ("apriori", "mad")), ("baarda_sigma0", ("apriori", "aposteriori"))):
+    for key, allowed in (("robust_scale", ("apriori", "mad")), ("baarda_sigma0", ("apriori", "aposteriori", "robust"))):
         if key in q and q[key] not in allowed:
             raise ConfigError(f"{src}: adjust.qc.{key} must be one of {list(allowed)}, got {q[key]!r}")
     return QCConfig(steps, float(q.get("sequent_limit_km", d.sequent_limit_km)), fn,

@@ -67,7 +67,7 @@ robust_function = "danish"
 robust_scale = "mad"
 baarda_limit = 4.0
 baarda_per_round = "point"
-baarda_sigma0 = "aposteriori"
+baarda_sigma0 = "robust"
 
 [report]
 html = true

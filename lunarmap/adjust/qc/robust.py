@@ -16,7 +16,8 @@ The normalised residual of an image observation is the larger of its two coordin
 ``|v| / (s sigma)`` (``normalise="sigma"``) or ``|v| / (s sigma sqrt(r))`` with redundancy
 numbers ``r`` (``"redundancy"``, the standardised residual: fairer where redundancies vary, but
 each round costs a posterior precision), ``s`` the a-priori ``sigma0 = 1`` (``scale="apriori"``)
-or a robust estimate ``1.4826 median |v / sigma|`` (``"mad"``).
+or a robust estimate ``1.4826 median |v / sigma|`` (``"mad"``) over the observations the current
+weights accept (``w >= 0.5``; all of them in the first reweighting).
 
 ``mode="iteration"`` reweights after every accepted step of the solver (its ``reweight`` hook);
 ``"rounds"`` adjusts to convergence with fixed weights, then reweights, until the weights settle.
@@ -141,15 +142,23 @@ def robust_step(ledger: Ledger, function: str = "danish", c: float | None = None
     rounds = 0
 
     calls = {"n": 0}
+    current = {"w": robust}
+
+    def scale_from() -> NDArray[np.bool_]:
+        # the robust spread of the observations the current weights accept: with half of them
+        # mismatched the median of all is the mismatches' own scale, and nothing would be rejected
+        acc = active & (current["w"] >= 0.5)
+        return acc if acc.sum() >= max(10, active.sum() // 10) else active
 
     def weights_for(state: AdjustmentState) -> NDArray:
-        u = _normalised(ledger, state, scale, red, subject)
+        u = _normalised(ledger, state, scale, red, scale_from())
         # the first reweightings with Huber's convex function: a redescending one applied to the residuals
         # of a solution that large errors still distort cuts good observations off for good
         f = _huber if calls["n"] < warmup else fn
         calls["n"] += 1
         # never exactly 0: a point keeps its rays; observations not subject to it keep theirs
         w = np.where(active, np.maximum(f(u, c), 1e-10), np.where(still, 1.0, 0.0))
+        current["w"] = w
         return w
 
     if mode == "iteration":
@@ -179,7 +188,7 @@ def robust_step(ledger: Ledger, function: str = "danish", c: float | None = None
             if change < 1e-3:
                 break
             result = ledger.adjust(options)
-    u = _normalised(ledger, ledger.result.state, scale, red, subject)
+    u = _normalised(ledger, ledger.result.state, scale, red, scale_from())
     reject = np.flatnonzero(active & (robust < min_weight))
     ledger.weights.image_weight = base_w.copy()
     ledger.remove_image(reject, "robust", rounds, value=robust[reject])

@@ -7,7 +7,8 @@ After each adjustment every observation ``i`` is tested with its w-test (Baarda 
 ``v_i / sigma_i`` the whitened residual, ``r_i`` its redundancy number
 (:class:`~lunarmap.adjust.precision.Precision`: image coordinates, control point coordinates,
 navigation observations), against the a-priori ``sigma0 = 1`` (or the a-posteriori one, Pope's
-tau-test, ``sigma0="aposteriori"``). Observations with ``r_i < min_redundancy`` cannot be tested
+tau-test, ``sigma0="aposteriori"``; or ``"robust"``, ``1.4826 median |w|`` of the image coordinates,
+which many gross errors do not inflate). Observations with ``r_i < min_redundancy`` cannot be tested
 (a gross error there is invisible) and are counted, not tested. If the largest ``|w|`` exceeds the
 limit (the paper: 4), only that observation is acted on, the block is adjusted again and tested
 again, until no test fails: an image observation is removed; a navigation or control observation
@@ -87,6 +88,11 @@ def w_tests(ledger: Ledger, sigma0: str = "apriori", min_redundancy: float = 0.0
     untestable = int(np.sum(act & ~ok))
     with np.errstate(invalid="ignore", divide="ignore"):
         w_img = np.where(ok, z / (s0 * np.sqrt(np.where(ok, r, 1.0))), np.nan)
+    if sigma0 == "robust" and ok.any():
+        # sigma0 from the median standardised residual: the a-posteriori one of a block with many gross
+        # errors is theirs, and no test would fail against it
+        s0 = max(1.4826 * float(np.median(np.abs(w_img[ok]))), 1e-12)
+        w_img = w_img / s0
     out = {"image": w_img, "image_r": np.where(act, r, np.nan)}
     base = ledger.base.priors
     k = 0 if base is None else base.idx.size
@@ -116,6 +122,7 @@ def w_tests(ledger: Ledger, sigma0: str = "apriori", min_redundancy: float = 0.0
     out["terms"], out["terms_r"] = wt, rt
     out["untestable"] = untestable
     out["sigma0"] = res.sigma0
+    out["sigma0_used"] = s0
     return out
 
 
@@ -201,8 +208,8 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
         raise QualityControlInputError(f"the down-weighting factor must be > 1, got {factor!r}")
     if per_round not in ("one", "point"):
         raise QualityControlInputError(f"per_round must be 'one' or 'point', got {per_round!r}")
-    if sigma0 not in ("apriori", "aposteriori"):
-        raise QualityControlInputError(f"sigma0 must be 'apriori' or 'aposteriori', got {sigma0!r}")
+    if sigma0 not in ("apriori", "aposteriori", "robust"):
+        raise QualityControlInputError(f"sigma0 must be 'apriori', 'aposteriori' or 'robust', got {sigma0!r}")
     reinstated: set[int] = set()
     restored: set = set()
     hits_term: dict[tuple[int, int], int] = {}
