@@ -41,7 +41,7 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import ConvergenceError, InvalidInputError
+from ..errors import InvalidInputError
 from ..orientation.exterior import ExteriorOrientation
 from ..orientation.rotation import left_jacobian, matrix_to_quat, quat_to_matrix, rotvec_to_matrix, skew
 from .distortion import Distortion
@@ -457,8 +457,11 @@ class LineScanCorrections:
             if act.size == 0:
                 return t
             r = self._residual(p, X[act], t[act])
-        raise ConvergenceError(f"line-scan corrections: ground-to-image did not converge for {act.size} of "
-                               f"{X.shape[0]} point(s) of {self.sensor.interior.name or 'the image'}")
+        # no time for these points (a trial step of the adjustment far off, a point dragged by a gross error):
+        # NaN, which the projection carries to their rows only; the solver rejects such a step, quality
+        # control sets such a point aside
+        t[act] = np.nan
+        return t
 
     def project(self, params: ArrayLike, xyz: ArrayLike) -> Array:
         p = _params(params, self.n_params, "LineScanCorrections")

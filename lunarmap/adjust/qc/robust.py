@@ -16,8 +16,7 @@ The normalised residual of an image observation is the larger of its two coordin
 ``|v| / (s sigma)`` (``normalise="sigma"``) or ``|v| / (s sigma sqrt(r))`` with redundancy
 numbers ``r`` (``"redundancy"``, the standardised residual: fairer where redundancies vary, but
 each round costs a posterior precision), ``s`` the a-priori ``sigma0 = 1`` (``scale="apriori"``)
-or a robust estimate ``1.4826 median |v / sigma|`` (``"mad"``) over the observations the current
-weights accept (``w >= 0.5``; all of them in the first reweighting).
+or a robust estimate ``1.4826 median |v / sigma|`` (``"mad"``) over the observations subject to it.
 
 ``mode="iteration"`` reweights after every accepted step of the solver (its ``reweight`` hook);
 ``"rounds"`` adjusts to convergence with fixed weights, then reweights, until the weights settle.
@@ -142,13 +141,12 @@ def robust_step(ledger: Ledger, function: str = "danish", c: float | None = None
     rounds = 0
 
     calls = {"n": 0}
-    current = {"w": robust}
 
     def scale_from() -> NDArray[np.bool_]:
-        # the robust spread of the observations the current weights accept: with half of them
-        # mismatched the median of all is the mismatches' own scale, and nothing would be rejected
-        acc = active & (current["w"] >= 0.5)
-        return acc if acc.sum() >= max(10, active.sum() // 10) else active
+        # the spread of all observations subject to the step: a spread of only those the current weights accept
+        # shrinks round by round where the sigmas are uneven (a matcher's), and takes good observations with it
+        # (measured: 90 % of the good ones out at 50 % mismatches)
+        return active
 
     def weights_for(state: AdjustmentState) -> NDArray:
         u = _normalised(ledger, state, scale, red, scale_from())
@@ -158,7 +156,6 @@ def robust_step(ledger: Ledger, function: str = "danish", c: float | None = None
         calls["n"] += 1
         # never exactly 0: a point keeps its rays; observations not subject to it keep theirs
         w = np.where(active, np.maximum(f(u, c), 1e-10), np.where(still, 1.0, 0.0))
-        current["w"] = w
         return w
 
     if mode == "iteration":
