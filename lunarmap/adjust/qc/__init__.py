@@ -21,6 +21,8 @@ held fixed, so the :class:`QCReport` refers to the user's own observations, poin
 from __future__ import annotations
 
 import dataclasses
+import logging
+import time
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -43,6 +45,8 @@ from .snooping import snooping_step, w_tests
 __all__ = ["quality_control", "QCOptions", "QCResult", "QCReport", "Decision", "Ledger", "STEPS",
            "sequent_screening", "SequentResult", "robust_step", "snooping_step", "w_tests", "offset_drift_step",
            "WEIGHT_FUNCTIONS", "weight_function", "block_result"]
+
+_log = logging.getLogger(__name__)
 
 #: the quality-control steps, by name
 STEPS = ("sequent", "robust", "baarda", "variance", "offsets")
@@ -189,8 +193,10 @@ def quality_control(problem: BundleProblem, steps: Sequence[str] = ("sequent", "
     sigma0_first = first.sigma0
     seq = vc = off = None
     summary: dict = {"steps": steps}
+    _log.info("quality control: first adjustment, sigma0 %.3f; steps %s", first.sigma0, " -> ".join(steps))
     for step in steps:
         ledger.step = step
+        t_step, n_dec = time.perf_counter(), len(ledger.decisions)
         if step == "sequent":
             # the first adjustment may have set aside points that gross errors dragged onto a projection
             # centre, with all their good rays; Sequent tests the rays themselves, so it gets them back
@@ -222,6 +228,10 @@ def quality_control(problem: BundleProblem, steps: Sequence[str] = ("sequent", "
                                                  action="sigma scaled" if e else "kept", group=name))
         elif step == "offsets":
             off = offset_drift_step(ledger, options=opt.solver, **opt.offsets)
+        acted = [d for d in ledger.decisions[n_dec:] if d.action in ("removed", "downweighted", "flagged")]
+        _log.info("quality control: %s done in %.1f s: %d observations removed / down-weighted / flagged, "
+                  "%d image observations active", step, time.perf_counter() - t_step, len(acted),
+                  int(ledger.active.sum()))
     if ledger.result is None:
         ledger.adjust(opt.solver)
     res = ledger.result
