@@ -12,7 +12,7 @@ from __future__ import annotations
 import functools
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -411,10 +411,8 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
         rays = np.bincount(block.problem.obs.pt_idx[qc_out.ledger.active], minlength=block.problem.n_points)
         lost = (block.network.point_type == "check") & (rays < 2)
         if lost.any():
-            import dataclasses
-
             summary["qc"]["check_points_without_rays"] = block.network.point_id[lost].astype(str).tolist()
-            net_eval = dataclasses.replace(block.network, point_type=np.where(lost, "tie", block.network.point_type))
+            net_eval = replace(block.network, point_type=np.where(lost, "tie", block.network.point_type))
             check_res = BlockResult(Block(block.names, block.model, net_eval, result.problem, block.navigation), result)
     has_check = bool(np.any(check_res.block.network.point_type == "check"))
 
