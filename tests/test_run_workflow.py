@@ -109,6 +109,28 @@ def test_rerun_reuses_everything_and_a_changed_parameter_reruns_only_what_depend
     assert run(serial.config, scheduler="sync", report=False).computed == 0
 
 
+def test_variance_components_in_the_run_replace_the_tie_variance_factor(example, serial):
+    """``steps = ["baarda", "variance"]``: variance components per navigation group (image groups) and of the
+    navigation and control observations; groups without the redundancy for it (one image per navigation group)
+    keep their a-priori sigma, named by the run's group labels; the adjustment still meets the check points."""
+    cfg = _config(example, "serial", **{'steps = ["baarda"]': 'steps = ["baarda", "variance"]'})
+    res = run(cfg, scheduler="sync", report=False)
+    assert res.counts()["adjust"] == (1, 0) and res.counts()["match"][0] == 0
+    s = res.summary
+    assert s["qc"]["steps"] == ["baarda", "variance"] and s["variance_factors"] == []
+    with xr.open_dataset(res.outputs["adjustment"] / "qc.nc") as ds:
+        names = [str(n) for n in ds["obs_group"].values]
+        est = ds["group_estimated"].values.astype(bool)
+        f = ds["group_sigma_factor"].values
+    img = [n.startswith("image ") for n in names]
+    assert all(est[img]) and np.all((f[img] > 0.2) & (f[img] < 5.0))
+    assert any(n.startswith("navigation position orbit 1-nac") for n in names)      # the run's labels
+    assert np.all(f[~est] == 1.0)                                                     # kept at their sigma
+    before, after = (np.sqrt(np.sum(np.square(s[k]))) for k in ("check_rms_before_m", "check_rms_after_m"))
+    assert after * 10 < before
+    assert run(serial.config, scheduler="sync", report=False).computed == 0
+
+
 def test_interrupted_run_resumes_with_only_the_unfinished_steps(example, monkeypatch):
     import lunarmap.workflows.engine as run_mod
 

@@ -439,7 +439,7 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
             if on_weak == "keep":
                 # back to the a-priori sigma of the weak groups, estimate the others again
                 back = np.where(weak, 1.0 / total, 1.0)
-                total *= back
+                total = np.where(weak, 1.0, total * back)   # exactly the a-priori sigma
                 x = np.where(weak, 0.0, x)
                 _apply_group_scale(w, groups, back)
             # "freeze": the weak groups stay where the iteration took them
@@ -472,7 +472,7 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
         est &= ~weak
         if on_weak == "keep":
             back = np.where(weak, 1.0 / total, 1.0)
-            total *= back
+            total = np.where(weak, 1.0, total * back)   # exactly the a-priori sigma
             _apply_group_scale(w, groups, back)
             result = solve(reweighted_problem(problem, w, result.cam_params, result.points, terms), opts)
             f, r, _, n = group_variance_factors(result, groups)
