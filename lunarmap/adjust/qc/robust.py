@@ -142,14 +142,11 @@ def robust_step(ledger: Ledger, function: str = "danish", c: float | None = None
 
     calls = {"n": 0}
 
-    def scale_from() -> NDArray[np.bool_]:
-        # the spread of all observations subject to the step: a spread of only those the current weights accept
+    def weights_for(state: AdjustmentState) -> NDArray:
+        # the MAD scale of all observations subject to the step: one of only those the current weights accept
         # shrinks round by round where the sigmas are uneven (a matcher's), and takes good observations with it
         # (measured: 90 % of the good ones out at 50 % mismatches)
-        return active
-
-    def weights_for(state: AdjustmentState) -> NDArray:
-        u = _normalised(ledger, state, scale, red, scale_from())
+        u = _normalised(ledger, state, scale, red, active)
         # the first reweightings with Huber's convex function: a redescending one applied to the residuals
         # of a solution that large errors still distort cuts good observations off for good
         f = _huber if calls["n"] < warmup else fn
@@ -185,7 +182,7 @@ def robust_step(ledger: Ledger, function: str = "danish", c: float | None = None
             if change < 1e-3:
                 break
             result = ledger.adjust(options)
-    u = _normalised(ledger, ledger.result.state, scale, red, scale_from())
+    u = _normalised(ledger, ledger.result.state, scale, red, active)
     reject = np.flatnonzero(active & (robust < min_weight))
     ledger.weights.image_weight = base_w.copy()
     ledger.remove_image(reject, "robust", rounds, value=robust[reject])
