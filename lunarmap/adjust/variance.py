@@ -320,6 +320,12 @@ def _apply_group_scale(w: Weights, groups: ObservationGroups, step: NDArray) -> 
         f[gt >= 0] *= step[gt[gt >= 0]]
 
 
+def _back_to_apriori(w: Weights, groups: ObservationGroups, total: NDArray, weak: NDArray) -> NDArray:
+    """Give the ``weak`` groups their a-priori sigma back (in ``w``); returns the running scales, exactly 1 there."""
+    _apply_group_scale(w, groups, np.where(weak, 1.0 / total, 1.0))
+    return np.where(weak, 1.0, total)
+
+
 def _weak_group(groups: ObservationGroups, r: NDArray, n: NDArray, j: int,
                 min_redundancy: float) -> VarianceComponentError:
     """The error for group ``j``, whose redundancy is too small for its variance component."""
@@ -438,10 +444,8 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
             est &= ~weak
             if on_weak == "keep":
                 # back to the a-priori sigma of the weak groups, estimate the others again
-                back = np.where(weak, 1.0 / total, 1.0)
-                total = np.where(weak, 1.0, total * back)   # exactly the a-priori sigma
+                total = _back_to_apriori(w, groups, total, weak)
                 x = np.where(weak, 0.0, x)
-                _apply_group_scale(w, groups, back)
             # "freeze": the weak groups stay where the iteration took them
             xs, fs, saved = [], [], None
             result = solve(reweighted_problem(problem, w, result.cam_params, result.points, terms), opts)
@@ -471,9 +475,7 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
         # out of rounds with groups still below the redundancy needed: they are not estimated
         est &= ~weak
         if on_weak == "keep":
-            back = np.where(weak, 1.0 / total, 1.0)
-            total = np.where(weak, 1.0, total * back)   # exactly the a-priori sigma
-            _apply_group_scale(w, groups, back)
+            total = _back_to_apriori(w, groups, total, weak)
             result = solve(reweighted_problem(problem, w, result.cam_params, result.points, terms), opts)
             f, r, _, n = group_variance_factors(result, groups)
     if not converged and on_weak == "raise" and np.any(est & ~(r >= min_redundancy)):

@@ -306,22 +306,15 @@ def _export(cfg: RunConfig, graph: _Graph, records: list[Done]) -> tuple[dict[st
     files["tiepoints"] = copy(by_stage["tiepoints"][0].path, out / "tiepoints.nc")
     files["adjustment"] = copy(by_stage["adjust"][0].path, out / "adjustment")
     files["metakernel"] = copy(by_stage["kernels"][0].path, out / "adjusted.tm")
-    if "rpc" in by_stage:
-        from ..rpc import read_netcdf, write_rpc_txt
+    for stage in ("rpc", "rpc_adjusted"):      # the navigation cameras' RFMs and the adjusted cameras'
+        if stage in by_stage:
+            from ..rpc import read_netcdf, write_rpc_txt
 
-        (out / "rpc").mkdir(exist_ok=True)
-        for d in by_stage["rpc"]:
-            copy(d.path, out / "rpc" / f"{d.item}.nc")
-            write_rpc_txt(read_netcdf(d.path), out / "rpc" / f"{d.item}_RPC.TXT")
-        files["rpc"] = out / "rpc"
-    if "rpc_adjusted" in by_stage:
-        from ..rpc import read_netcdf, write_rpc_txt
-
-        (out / "rpc_adjusted").mkdir(exist_ok=True)
-        for d in by_stage["rpc_adjusted"]:
-            copy(d.path, out / "rpc_adjusted" / f"{d.item}.nc")
-            write_rpc_txt(read_netcdf(d.path), out / "rpc_adjusted" / f"{d.item}_RPC.TXT")
-        files["rpc_adjusted"] = out / "rpc_adjusted"
+            (out / stage).mkdir(exist_ok=True)
+            for d in by_stage[stage]:
+                copy(d.path, out / stage / f"{d.item}.nc")
+                write_rpc_txt(read_netcdf(d.path), out / stage / f"{d.item}_RPC.TXT")
+            files[stage] = out / stage
     (out / "isd").mkdir(exist_ok=True)
     for d in by_stage["isd"]:
         copy(d.path, out / "isd" / f"{d.item}.json")

@@ -403,10 +403,9 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
                "n_points": int(block.problem.n_points), "n_observations": int(block.problem.obs.n),
                "groups": {k: list(v) for k, v in res.result.group_quadratic_forms().items()},
                "rms_px": res.result.rms_px(), "solve_seconds": float(res.result.solve_seconds)}
-    if qc_out is not None:
-        summary["qc"] = _qc_summary(qc_out, block, names)
     check_res = res
     if qc_out is not None:
+        summary["qc"] = _qc_summary(qc_out, block, names)
         # a check point that quality control left with fewer than 2 rays is not adjusted: it is reported, not scored
         rays = np.bincount(block.problem.obs.pt_idx[qc_out.ledger.active], minlength=block.problem.n_points)
         lost = (block.network.point_type == "check") & (rays < 2)
