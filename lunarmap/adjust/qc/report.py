@@ -31,7 +31,8 @@ class QCReport:
     offsets : list of xarray.Dataset
         The offset/drift detection rounds (``"times 1"``, ``"times 2"``, ``"results"``).
     summary : dict
-        ``steps``, ``sigma0_first`` / ``sigma0_last`` (a-posteriori sigma0 of the first and last
+        ``steps``, ``first_adjustment`` (``"least squares"``, or ``"robust"`` when the robust step
+        comes first), ``sigma0_first`` / ``sigma0_last`` (a-posteriori sigma0 of the first and last
         adjustments), ``untestable`` observations of the last data-snooping round, ``max_w``.
     """
 
@@ -102,7 +103,8 @@ class QCReport:
         """A printable summary: actions per step and group, group sigmas, offsets/drifts per round."""
         lines = []
         s = self.summary
-        lines.append(f"quality control: steps {' -> '.join(s.get('steps', []))}; sigma0 first "
+        first = f" ({s['first_adjustment']})" if s.get("first_adjustment") else ""
+        lines.append(f"quality control: steps {' -> '.join(s.get('steps', []))}; sigma0 first{first} "
                      f"{s.get('sigma0_first', float('nan')):.3f}, last {s.get('sigma0_last', float('nan')):.3f}")
         c = self.counts()
         if c:

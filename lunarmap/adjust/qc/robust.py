@@ -108,7 +108,8 @@ def robust_step(ledger: Ledger, function: str = "danish", c: float | None = None
     -------
     dict
         ``weights`` (n_obs,) the final robust weights, ``u`` the final normalised residuals,
-        ``rounds`` adjustments made, ``removed`` observation indices.
+        ``rounds`` adjustments made, ``removed`` observation indices, ``sigma0`` the a-posteriori sigma0
+        of the robust adjustment (with its final weights, before the removals).
 
     Raises
     ------
@@ -186,4 +187,4 @@ def robust_step(ledger: Ledger, function: str = "danish", c: float | None = None
     reject = np.flatnonzero(active & (robust < min_weight))
     ledger.weights.image_weight = base_w.copy()
     ledger.remove_image(reject, "robust", rounds, value=robust[reject])
-    return {"weights": robust, "u": u, "rounds": rounds, "removed": reject}
+    return {"weights": robust, "u": u, "rounds": rounds, "removed": reject, "sigma0": float(result.sigma0)}
