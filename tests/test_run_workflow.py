@@ -131,6 +131,25 @@ def test_variance_components_in_the_run_replace_the_tie_variance_factor(example,
     assert run(serial.config, scheduler="sync", report=False).computed == 0
 
 
+def test_robust_first_in_the_run_is_the_first_adjustment(example, serial):
+    """``steps = ["robust", "baarda"]``: no least-squares adjustment before the robust one (the summary and
+    the printed line say so); the tie points' mismatches go, the measured control/check points are left to the
+    w-tests, and the adjustment still meets the check points."""
+    from lunarmap.workflows.report import qc_text
+
+    cfg = _config(example, "serial", **{'steps = ["baarda"]': 'steps = ["robust", "baarda"]'})
+    res = run(cfg, scheduler="sync", report=False)
+    assert res.counts()["adjust"] == (1, 0) and res.counts()["match"][0] == 0
+    q = res.summary["qc"]
+    assert q["steps"] == ["robust", "baarda"] and q["first_adjustment"] == "robust"
+    assert "in the robust adjustment" in qc_text(res.summary)
+    assert 0 < q["image_observations_removed"] < 0.2 * q["image_observations"]
+    assert np.isfinite(q["sigma0_first"]) and q["sigma0_last"] < 1.5 * q["sigma0_first"]
+    before, after = (np.sqrt(np.sum(np.square(res.summary[k]))) for k in ("check_rms_before_m", "check_rms_after_m"))
+    assert after * 10 < before
+    assert run(serial.config, scheduler="sync", report=False).computed == 0
+
+
 def test_interrupted_run_resumes_with_only_the_unfinished_steps(example, monkeypatch):
     import lunarmap.workflows.engine as run_mod
 

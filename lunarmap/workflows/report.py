@@ -29,9 +29,11 @@ def qc_text(summary: dict[str, Any]) -> str:
         return ""
     by = ", ".join(f"{k} {v}" for k, v in q["removed_by_point_type"].items() if v)
     acted = ", ".join(f"{k}: {v}" for k, v in q["actions"].items()) or "nothing acted on"
+    # robust first: the first adjustment is the robust one, its sigma0 not that of the blunders
+    before = "in the robust adjustment" if q.get("first_adjustment") == "robust" else "before"
     return (f"quality control ({' -> '.join(q['steps'])}): {q['image_observations_removed']} of "
             f"{q['image_observations']} image observations removed ({by or 'none'}; {acted}); sigma0 "
-            f"{q['sigma0_first']:.3f} before, {q['sigma0_last']:.3f} after")
+            f"{q['sigma0_first']:.3f} {before}, {q['sigma0_last']:.3f} after")
 
 
 def _figure(draw: Any, width: float = 6.4, height: float = 4.2) -> bytes:

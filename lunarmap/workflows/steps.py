@@ -489,6 +489,7 @@ def _qc_summary(qc_out: Any, block: Any, names: Sequence[str]) -> dict[str, Any]
     ptype = block.network.point_type[block.problem.obs.pt_idx]
     out: dict[str, Any] = {
         "steps": list(rep.summary.get("steps", [])),
+        "first_adjustment": str(rep.summary.get("first_adjustment", "least squares")),
         "sigma0_first": float(rep.summary.get("sigma0_first", np.nan)),
         "sigma0_last": float(rep.summary.get("sigma0_last", np.nan)),
         "actions": {" ".join(k): int(v) for k, v in sorted(rep.counts().items())},
