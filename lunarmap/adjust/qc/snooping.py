@@ -31,13 +31,17 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ...errors import DatumDefectError, QualityControlError, QualityControlInputError
+from ...errors import AdjustmentDivergedError, DatumDefectError, QualityControlError, QualityControlInputError
 from ..normal import image_residuals, prior_terms
 from ..solver import SolverOptions
 from .ledger import Decision, Ledger
 
 __all__ = ["w_tests", "snooping_step"]
 
+
+#: a leave-one-out resection is decisive when it fits the other observations within this many limits and
+#: the next best leave-out's RMS is this many times larger
+DECISIVE = 5.0
 
 #: point-normal eigenvalue ratios tried in turn when the precision fails: gross errors can drag a point onto
 #: a projection centre, where its partials blow up and its normal block is rounding noise
@@ -186,9 +190,185 @@ def _restorable(ledger: Ledger, limit: float, done: set) -> list:
     return out
 
 
+def _resect(model, params: NDArray, cam: int, free: NDArray, X: NDArray, xy: NDArray, sig: NDArray,
+            iterations: int = 8) -> NDArray:
+    """Whitened residuals ``(m, 2)`` of image ``cam``'s observations ``xy`` (sigmas ``sig (m, 2)``, pixels) of
+    the fixed points ``X (m, 3)`` after a Gauss-Newton resection of its free parameters (started at
+    ``params[cam]``; ``params`` all images' parameters, as the model expects them)."""
+    P = params.copy()
+    ci = np.full(X.shape[0], cam, np.int64)
+    for _ in range(iterations):
+        x, J, _ = model.linearize(P, ci, X)
+        r = ((x - xy) / sig).ravel()
+        A = (J[:, :, free] / sig[:, :, None]).reshape(-1, int(free.sum()))
+        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(A))):
+            return np.full(xy.shape, np.nan)        # diverged: this leave-out is not a candidate
+        step, *_ = np.linalg.lstsq(A, -r, rcond=None)
+        P[cam, free] += step
+        if np.max(np.abs(step)) < 1e-12 * (1.0 + np.max(np.abs(P[cam]))):
+            break
+    return (model.project(P, ci, X) - xy) / sig
+
+
+def _nav_rows(ledger: Ledger, cam: int) -> list[NDArray[np.int64]]:
+    """Rows of every term (navigation observations) that belong to image ``cam``."""
+    out = []
+    for term in ledger.terms:
+        table = getattr(term, "row_table", None)
+        out.append(np.zeros(0, np.int64) if table is None else np.flatnonzero(table()["image"] == cam))
+    return out
+
+
+def _trial_costs(ledger: Ledger, cand: NDArray[np.int64], cam: int, options: SolverOptions | None) -> NDArray:
+    """Final cost of the whole block with each of the candidate observations ``cand`` left out in turn (the
+    others in; image ``cam``'s navigation rows at their a-priori weight, ``cam < 0`` none); the ledger is not
+    changed."""
+    import copy
+    import dataclasses
+
+    from ..solver import solve
+    from ..weights import reweighted_problem
+
+    res = ledger.result
+    opts = dataclasses.replace(options or SolverOptions(), check_datum=False)
+    rows = _nav_rows(ledger, cam) if cam >= 0 else []
+    cost = np.full(cand.size, np.inf)
+    for k in range(cand.size):
+        w = copy.deepcopy(ledger.weights)
+        w.image_weight[cand] = 1.0
+        w.image_weight[cand[k]] = 0.0
+        for t, r in enumerate(rows):
+            w.term_sigma[t][r] = 1.0
+        try:
+            pb = ledger._finite(reweighted_problem(ledger.base, w, res.cam_params, res.points, ledger.terms))
+            cost[k] = solve(pb, opts).cost
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError, DatumDefectError, AdjustmentDivergedError):
+            continue                # a trial that cannot be adjusted is no candidate
+    return cost
+
+
+def _local_fits(ledger: Ledger, kind: str, unit: int, cand: NDArray[np.int64]) -> tuple[NDArray, NDArray]:
+    """RMS and largest whitened residual of the other candidates with each candidate left out in turn: the
+    image resected on the adjusted points (``kind="image"``), or the point intersected from the adjusted
+    images (``"point"``)."""
+    from ..intersection import intersect_points
+
+    res = ledger.result
+    model = ledger.base.model
+    o = ledger.base.obs
+    n = cand.size
+    sig = o.sigma[cand] * ledger.weights.image_sigma[cand][:, None]
+    rms, top = np.full(n, np.inf), np.full(n, np.inf)
+    with np.errstate(all="ignore"):
+        if kind == "image":
+            free_all = ledger.base.cam_param_free
+            free = np.asarray(free_all[unit], bool) if free_all is not None else np.ones(model.n_params, bool)
+            X, xy = res.points[o.pt_idx[cand]], o.xy[cand]
+            zs = []
+            for k in range(n):
+                keep = np.arange(n) != k
+                zs.append(_resect(model, res.cam_params, unit, free, X[keep], xy[keep], sig[keep]))
+        else:
+            # n pseudo-points, the k-th from every candidate ray but the k-th
+            keep = ~np.eye(n, dtype=bool)
+            rk, ri = np.nonzero(keep)
+            obs = cand[ri]
+            try:
+                Xk = intersect_points(model, res.cam_params, o.cam_idx[obs], rk, o.xy[obs], sig[ri], n_pt=n,
+                                      x0=np.repeat(res.points[unit][None, :], n, axis=0)).xyz
+            except (ValueError, np.linalg.LinAlgError, ArithmeticError):
+                return rms, top
+            x = model.project(res.cam_params, o.cam_idx[obs], Xk[rk])
+            z = (x - o.xy[obs]) / sig[ri]
+            zs = [z[rk == k] for k in range(n)]
+    for k, z in enumerate(zs):
+        if np.all(np.isfinite(z)):
+            rms[k], top[k] = np.sqrt(np.mean(z * z)), np.max(np.abs(z))
+    return rms, top
+
+
+def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dict, options=None, trials=None,
+                    min_rays: int = 3, max_rays: int = 60) -> int:
+    """Images and points stripped around a gross error of their own: swap it for the good observations removed
+    in its place.
+
+    A large error pulls its image's orientation (and its point), so the w-tests of the image's *good*
+    observations and navigation rows, or of the point's other rays, exceed its own; one-at-a-time snooping
+    then removes them until the error is fitted with no redundancy left (measured on the DLR blocks,
+    ``bench_qc.py --part blunders``). For every image or point that has lost at least a third of its
+    observations (and two) to the snooping, each of its observations (active or removed, on points still
+    in the block) is left out in turn: the image resected on the adjusted points, the point intersected from
+    the adjusted images. A leave-out is decisive if it fits the others within ``DECISIVE`` limits and every
+    other leave-out leaves an RMS ``DECISIVE`` times larger. Where none is (the neighbours carry too much of
+    the error's pull) and the block is small (``trials``), the whole block is adjusted once per leave-out and
+    the lowest cost is decisive if the next is higher by ``limit**2 / 2`` (a likelihood-ratio test). The
+    decisive observation is removed, the others reinstated, an image's down-weighted navigation rows given
+    their a-priori weight back; the testing goes on. Each image and point at most once.
+
+    Returns
+    -------
+    int
+        The number of swaps made.
+    """
+    o = ledger.base.obs
+    removed = np.array(sorted({d.index for d in ledger.decisions if d.step == "baarda" and d.kind == "image"
+                               and d.action == "removed"}), np.int64)
+    if removed.size == 0:
+        return 0
+    removed = removed[(ledger.weights.image_weight[removed] == 0.0)
+                      & ~ledger.weights.dropped_points[o.pt_idx[removed]]]
+    n_swaps = 0
+    for kind, of in (("image", o.cam_idx), ("point", o.pt_idx)):
+        for unit in np.unique(of[removed]):
+            unit = int(unit)
+            if (kind, unit) in done:
+                continue
+            act = ledger.active
+            mine = np.flatnonzero(of == unit)
+            rem = np.intersect1d(mine, removed)
+            rem = rem[ledger.weights.image_weight[rem] == 0.0]
+            cand = np.union1d(mine[act[mine]], rem)
+            cand = cand[np.all(np.isfinite(ledger.result.points[o.pt_idx[cand]]), axis=1)]
+            if rem.size < max(2, cand.size // 3) or not (min_rays <= cand.size <= max_rays):
+                continue
+            done.add((kind, unit))
+            rms, top = _local_fits(ledger, kind, unit, cand)
+            order = np.argsort(rms)
+            best = int(order[0])
+            if not (top[best] <= DECISIVE * limit and rms[order[1]] >= DECISIVE * rms[best]):
+                if trials is None or trials["left"] < cand.size:
+                    continue
+                trials["left"] -= cand.size
+                cost = _trial_costs(ledger, cand, unit if kind == "image" else -1, options)
+                order = np.argsort(cost)
+                best = int(order[0])
+                if not (np.isfinite(cost[best]) and 2.0 * (cost[order[1]] - cost[best]) >= limit ** 2):
+                    continue
+            out = int(cand[best])
+            back = np.setdiff1d(rem, [out])
+            if not back.size and not act[out]:
+                continue                        # nothing would change
+            if act[out]:
+                ledger.remove_image(out, "baarda", rnd, value=np.nan)
+                ledger.decisions[-1].group += f" (left out of its stripped {kind})"
+            if back.size:
+                ledger.reinstate_image(back, "baarda", rnd)
+            if kind == "image":
+                for t, r in enumerate(_nav_rows(ledger, unit)):
+                    for row in r[ledger.weights.term_sigma[t][r] > 1.0]:
+                        ledger.weights.term_sigma[t][row] = 1.0
+                        hits.pop((t, int(row)), None)     # a navigation error of its own is tested afresh
+                        ledger.decisions.append(Decision("baarda", rnd, "navigation", int(row), unit,
+                                                         action="reinstated"))
+            n_swaps += 1
+    return n_swaps
+
+
 def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_rounds: int = 500,
                   per_round: str = "one", sigma0: str = "apriori", min_redundancy: float = 0.02,
-                  max_downweights: int = 3, reinstate: bool = True, options: SolverOptions | None = None) -> dict:
+                  max_downweights: int = 3, reinstate: bool = True, resection: bool = True,
+                  trial_observations: int = 20000, max_trials: int = 200,
+                  options: SolverOptions | None = None) -> dict:
     """Data snooping on the ledger's problem until no w-test exceeds ``limit`` (module docstring).
 
     Returns
@@ -212,9 +392,12 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
         raise QualityControlInputError(f"sigma0 must be 'apriori', 'aposteriori' or 'robust', got {sigma0!r}")
     reinstated: set[int] = set()
     restored: set = set()
+    resected: set = set()
+    # whole-block leave-one-out adjustments for stripped images, on small blocks only (each costs a solve)
+    o = ledger.base.obs
+    trials = {"left": max_trials} if o.n <= trial_observations else None
     hits_term: dict[tuple[int, int], int] = {}
     hits_ctl: dict[int, int] = {}
-    o = ledger.base.obs
     tests = {}
     rnd = 0
     for rnd in range(1, max_rounds + 1):
@@ -254,6 +437,8 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
                 row = int(np.nanargmax(np.where(np.isnan(aw), -1, aw)))
                 cands.append((aw[row], "term", t, row))
         if not cands:
+            if resection and _stripped_swaps(ledger, limit, resected, rnd, hits_term, options, trials):
+                continue
             if not reinstate:
                 break
             back = _reinstatable(ledger, limit, reinstated)
