@@ -91,7 +91,7 @@ def test_baarda_alone_swaps_an_error_that_stripped_its_image_or_point(draw, stri
     sim = inject_blunders(dlr_block(seed=draw, example="blunders"), seed=1000 + draw)
     opts = QCOptions(solver=SolverOptions(ftol=1e-8))
     with_swap = score(sim, quality_control(dlr_problem(sim), ("baarda",), image_group=sim.block.camera, options=opts))
-    opts.baarda = {"resection": False}
+    opts.baarda = {"stripped": False}
     without = score(sim, quality_control(dlr_problem(sim), ("baarda",), image_group=sim.block.camera, options=opts))
     print(f"draw {draw} ({stripped}) with the swap:", with_swap, "\nwithout:", without)
     assert with_swap["found"] == 23 and without["large"] <= 9

@@ -21,6 +21,13 @@ the limit are given back (``reinstate``, once each) and the testing goes on: whi
 still in the block they spread into the other observations of their points, and the largest
 w-test may point at a good one.
 
+Before that, images and points stripped around a gross error of their own (``stripped``): an error
+that pulls its image's orientation or its point makes the w-tests of the good observations around it
+exceed its own, and one-at-a-time removal leaves it fitted with no redundancy. Each image or point that
+lost a third of its observations is checked by leaving each of them out in turn (the image resected on
+the adjusted points, the point intersected; the whole block adjusted per leave-out for images of blocks
+up to ``trial_observations``); a decisive culprit is removed and the good ones reinstated.
+
 ``per_round="point"`` acts in one round on the largest failing image observation of every point
 (and the largest failing navigation / control observation), for large blocks where one removal
 per adjustment would take too many rounds; the paper's way is ``"one"``.
@@ -39,7 +46,7 @@ from .ledger import Decision, Ledger
 __all__ = ["w_tests", "snooping_step"]
 
 
-#: a leave-one-out resection is decisive when it fits the other observations within this many limits and
+#: a leave-one-out fit (resection or intersection) is decisive when it fits the other observations within this many limits and
 #: the next best leave-out's RMS is this many times larger
 DECISIVE = 5.0
 
@@ -288,7 +295,7 @@ def _local_fits(ledger: Ledger, kind: str, unit: int, cand: NDArray[np.int64]) -
 
 
 def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dict, options=None, trials=None,
-                    min_rays: int = 3, max_rays: int = 60) -> int:
+                    min_rays: int = 4, max_rays: int = 60) -> int:
     """Images and points stripped around a gross error of their own: swap it for the good observations removed
     in its place.
 
@@ -299,9 +306,10 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
     observations (and two) to the snooping, each of its observations (active or removed, on points still
     in the block) is left out in turn: the image resected on the adjusted points, the point intersected from
     the adjusted images. A leave-out is decisive if it fits the others within ``DECISIVE`` limits and every
-    other leave-out leaves an RMS ``DECISIVE`` times larger. Where none is (the neighbours carry too much of
-    the error's pull) and the block is small (``trials``), the whole block is adjusted once per leave-out and
-    the lowest cost is decisive if the next is higher by ``limit**2 / 2`` (a likelihood-ratio test). The
+    other leave-out leaves an RMS ``DECISIVE`` times larger. Where none is for an image (its points carry too
+    much of the error's pull) and the block is small (``trials``), the whole block is adjusted once per
+    leave-out and the lowest cost is decisive if the next is higher by ``limit**2 / 2`` (a likelihood-ratio
+    test). The
     decisive observation is removed, the others reinstated, an image's down-weighted navigation rows given
     their a-priori weight back; the testing goes on. Each image and point at most once.
 
@@ -336,7 +344,7 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
             order = np.argsort(rms)
             best = int(order[0])
             if not (top[best] <= DECISIVE * limit and rms[order[1]] >= DECISIVE * rms[best]):
-                if trials is None or trials["left"] < cand.size:
+                if kind != "image" or trials is None or trials["left"] < cand.size:
                     continue
                 trials["left"] -= cand.size
                 cost = _trial_costs(ledger, cand, unit if kind == "image" else -1, options)
@@ -366,7 +374,7 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
 
 def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_rounds: int = 500,
                   per_round: str = "one", sigma0: str = "apriori", min_redundancy: float = 0.02,
-                  max_downweights: int = 3, reinstate: bool = True, resection: bool = True,
+                  max_downweights: int = 3, reinstate: bool = True, stripped: bool = True,
                   trial_observations: int = 20000, max_trials: int = 200,
                   options: SolverOptions | None = None) -> dict:
     """Data snooping on the ledger's problem until no w-test exceeds ``limit`` (module docstring).
@@ -437,7 +445,7 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
                 row = int(np.nanargmax(np.where(np.isnan(aw), -1, aw)))
                 cands.append((aw[row], "term", t, row))
         if not cands:
-            if resection and _stripped_swaps(ledger, limit, resected, rnd, hits_term, options, trials):
+            if stripped and _stripped_swaps(ledger, limit, resected, rnd, hits_term, options, trials):
                 continue
             if not reinstate:
                 break
