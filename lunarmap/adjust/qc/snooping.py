@@ -280,9 +280,12 @@ def _local_fits(ledger: Ledger, kind: str, unit: int, cand: NDArray[np.int64]) -
             keep = ~np.eye(n, dtype=bool)
             rk, ri = np.nonzero(keep)
             obs = cand[ri]
+            x0 = None       # a point set aside has stale coordinates: start from the model's own guess
+            if not ledger.weights.dropped_points[unit] and np.all(np.isfinite(res.points[unit])):
+                x0 = np.repeat(res.points[unit][None, :], n, axis=0)
             try:
                 Xk = intersect_points(model, res.cam_params, o.cam_idx[obs], rk, o.xy[obs], sig[ri], n_pt=n,
-                                      x0=np.repeat(res.points[unit][None, :], n, axis=0)).xyz
+                                      x0=x0).xyz
             except (ValueError, np.linalg.LinAlgError, ArithmeticError):
                 return rms, top
             x = model.project(res.cam_params, o.cam_idx[obs], Xk[rk])
@@ -302,9 +305,10 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
     A large error pulls its image's orientation (and its point), so the w-tests of the image's *good*
     observations and navigation rows, or of the point's other rays, exceed its own; one-at-a-time snooping
     then removes them until the error is fitted with no redundancy left (measured on the DLR blocks,
-    ``bench_qc.py --part blunders``). For every image or point that has lost at least a third of its
-    observations (and two) to the snooping, each of its observations (active or removed, on points still
-    in the block) is left out in turn: the image resected on the adjusted points, the point intersected from
+    ``bench_qc.py --part blunders``); Sequent can do the same to a point whose error lies along an epipolar
+    line. For every image or point that has lost at least a third of its observations (and two) to the
+    snooping or to Sequent, each of its observations (active or removed; for an image, on points still in
+    the block) is left out in turn: the image resected on the adjusted points, the point intersected from
     the adjusted images. A leave-out is decisive if it fits the others within ``DECISIVE`` limits and every
     other leave-out leaves an RMS ``DECISIVE`` times larger. Where none is for an image (its points carry too
     much of the error's pull) and the block is small (``trials``), the whole block is adjusted once per
@@ -319,12 +323,13 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
         The number of swaps made.
     """
     o = ledger.base.obs
-    removed = np.array(sorted({d.index for d in ledger.decisions if d.step == "baarda" and d.kind == "image"
-                               and d.action == "removed"}), np.int64)
+    # Sequent's removals too: a gross error along the epipolar line can pair with a good ray, and Sequent then
+    # removes the point's other good rays (and the point with them)
+    removed = np.array(sorted({d.index for d in ledger.decisions if d.step in ("baarda", "sequent")
+                               and d.kind == "image" and d.action == "removed"}), np.int64)
+    removed = removed[ledger.weights.image_weight[removed] == 0.0] if removed.size else removed
     if removed.size == 0:
         return 0
-    removed = removed[(ledger.weights.image_weight[removed] == 0.0)
-                      & ~ledger.weights.dropped_points[o.pt_idx[removed]]]
     n_swaps = 0
     for kind, of in (("image", o.cam_idx), ("point", o.pt_idx)):
         for unit in np.unique(of[removed]):
@@ -335,8 +340,12 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
             mine = np.flatnonzero(of == unit)
             rem = np.intersect1d(mine, removed)
             rem = rem[ledger.weights.image_weight[rem] == 0.0]
-            cand = np.union1d(mine[act[mine]], rem)
-            cand = cand[np.all(np.isfinite(ledger.result.points[o.pt_idx[cand]]), axis=1)]
+            # a point set aside keeps the weights of its rays: they are candidates too
+            live = act[mine] if kind == "image" else ledger.weights.image_weight[mine] > 0
+            cand = np.union1d(mine[live], rem)
+            if kind == "image":     # a resection needs the adjusted points: none of points set aside
+                cand = cand[~ledger.weights.dropped_points[o.pt_idx[cand]]
+                            & np.all(np.isfinite(ledger.result.points[o.pt_idx[cand]]), axis=1)]
             if rem.size < max(2, cand.size // 3) or not (min_rays <= cand.size <= max_rays):
                 continue
             done.add((kind, unit))
@@ -354,9 +363,10 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
                     continue
             out = int(cand[best])
             back = np.setdiff1d(rem, [out])
-            if not back.size and not act[out]:
+            live_out = ledger.weights.image_weight[out] > 0
+            if not back.size and not live_out:
                 continue                        # nothing would change
-            if act[out]:
+            if live_out:
                 ledger.remove_image(out, "baarda", rnd, value=np.nan)
                 ledger.decisions[-1].group += f" (left out of its stripped {kind})"
             if back.size:
