@@ -298,7 +298,7 @@ def _local_fits(ledger: Ledger, kind: str, unit: int, cand: NDArray[np.int64]) -
 
 
 def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dict, options=None, trials=None,
-                    min_rays: int = 4, max_rays: int = 60) -> int:
+                    min_rays: int = 3, max_rays: int = 60) -> int:
     """Images and points stripped around a gross error of their own: swap it for the good observations removed
     in its place.
 
@@ -325,13 +325,14 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
     o = ledger.base.obs
     # Sequent's removals too: a gross error along the epipolar line can pair with a good ray, and Sequent then
     # removes the point's other good rays (and the point with them)
-    removed = np.array(sorted({d.index for d in ledger.decisions if d.step in ("baarda", "sequent")
-                               and d.kind == "image" and d.action == "removed"}), np.int64)
-    removed = removed[ledger.weights.image_weight[removed] == 0.0] if removed.size else removed
-    if removed.size == 0:
-        return 0
+    by = {step: np.array(sorted({d.index for d in ledger.decisions if d.step == step and d.kind == "image"
+                                 and d.action == "removed"}), np.int64) for step in ("baarda", "sequent")}
     n_swaps = 0
-    for kind, of in (("image", o.cam_idx), ("point", o.pt_idx)):
+    # an image's swap assumes one error of its own: it does not undo Sequent's removals, which judged the
+    # rays of a point (an image with two errors would get one back)
+    for kind, of, removed in (("image", o.cam_idx, by["baarda"]),
+                              ("point", o.pt_idx, np.union1d(by["baarda"], by["sequent"]))):
+        removed = removed[ledger.weights.image_weight[removed] == 0.0] if removed.size else removed
         for unit in np.unique(of[removed]):
             unit = int(unit)
             if (kind, unit) in done:
