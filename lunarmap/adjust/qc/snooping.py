@@ -254,47 +254,79 @@ def _trial_costs(ledger: Ledger, cand: NDArray[np.int64], cam: int, options: Sol
     return cost
 
 
-def _local_fits(ledger: Ledger, kind: str, unit: int, cand: NDArray[np.int64]) -> tuple[NDArray, NDArray]:
-    """RMS and largest whitened residual of the other candidates with each candidate left out in turn: the
-    image resected on the adjusted points (``kind="image"``), or the point intersected from the adjusted
-    images (``"point"``)."""
-    from ..intersection import intersect_points
+def _fit_stats(zs: list) -> tuple[NDArray, NDArray]:
+    n = len(zs)
+    rms, top = np.full(n, np.inf), np.full(n, np.inf)
+    for k, z in enumerate(zs):
+        if z.size and np.all(np.isfinite(z)):
+            rms[k], top[k] = np.sqrt(np.mean(z * z)), np.max(np.abs(z))
+    return rms, top
 
+
+def _image_fits(ledger: Ledger, unit: int, cand: NDArray[np.int64]) -> tuple[NDArray, NDArray]:
+    """RMS and largest whitened residual of the other candidates with each candidate left out in turn, image
+    ``unit`` resected on the adjusted points."""
     res = ledger.result
     model = ledger.base.model
     o = ledger.base.obs
     n = cand.size
     sig = o.sigma[cand] * ledger.weights.image_sigma[cand][:, None]
-    rms, top = np.full(n, np.inf), np.full(n, np.inf)
+    free_all = ledger.base.cam_param_free
+    free = np.asarray(free_all[unit], bool) if free_all is not None else np.ones(model.n_params, bool)
+    X, xy = res.points[o.pt_idx[cand]], o.xy[cand]
     with np.errstate(all="ignore"):
-        if kind == "image":
-            free_all = ledger.base.cam_param_free
-            free = np.asarray(free_all[unit], bool) if free_all is not None else np.ones(model.n_params, bool)
-            X, xy = res.points[o.pt_idx[cand]], o.xy[cand]
-            zs = []
-            for k in range(n):
-                keep = np.arange(n) != k
-                zs.append(_resect(model, res.cam_params, unit, free, X[keep], xy[keep], sig[keep]))
-        else:
-            # n pseudo-points, the k-th from every candidate ray but the k-th
-            keep = ~np.eye(n, dtype=bool)
-            rk, ri = np.nonzero(keep)
-            obs = cand[ri]
-            x0 = None       # a point set aside has stale coordinates: start from the model's own guess
-            if not ledger.weights.dropped_points[unit] and np.all(np.isfinite(res.points[unit])):
-                x0 = np.repeat(res.points[unit][None, :], n, axis=0)
-            try:
-                Xk = intersect_points(model, res.cam_params, o.cam_idx[obs], rk, o.xy[obs], sig[ri], n_pt=n,
-                                      x0=x0).xyz
-            except (ValueError, np.linalg.LinAlgError, ArithmeticError):
-                return rms, top
-            x = model.project(res.cam_params, o.cam_idx[obs], Xk[rk])
-            z = (x - o.xy[obs]) / sig[ri]
-            zs = [z[rk == k] for k in range(n)]
-    for k, z in enumerate(zs):
-        if np.all(np.isfinite(z)):
-            rms[k], top[k] = np.sqrt(np.mean(z * z)), np.max(np.abs(z))
-    return rms, top
+        zs = [_resect(model, res.cam_params, unit, free, X[np.arange(n) != k], xy[np.arange(n) != k],
+                      sig[np.arange(n) != k]) for k in range(n)]
+    return _fit_stats(zs)
+
+
+def _point_fits(ledger: Ledger, units: list[int], cands: list[NDArray[np.int64]]) -> list[tuple[NDArray, NDArray]]:
+    """For each point ``units[j]``: RMS and largest whitened residual of the other candidate rays
+    ``cands[j]`` with each left out in turn, the point intersected from the adjusted images.
+
+    All leave-outs of all points are one vectorised intersection (a line-scan projection costs the same for
+    one ray as for thousands; per point it was most of the run's snooping time)."""
+    from ..intersection import intersect_points
+
+    res = ledger.result
+    model = ledger.base.model
+    o = ledger.base.obs
+    # one pseudo-point per (point, left-out ray), from every other candidate ray of its point
+    obs, pk, first, x0 = [], [], [0], []
+    for unit, cand in zip(units, cands):
+        n = cand.size
+        rk, ri = np.nonzero(~np.eye(n, dtype=bool))
+        obs.append(cand[ri])
+        pk.append(first[-1] + rk)
+        first.append(first[-1] + n)
+        # a point set aside has stale coordinates: start from the model's own guess (NaN marks it)
+        ok = not ledger.weights.dropped_points[unit] and np.all(np.isfinite(res.points[unit]))
+        x0.append(np.repeat((res.points[unit] if ok else np.full(3, np.nan))[None, :], n, axis=0))
+    if not units:
+        return []
+    obs, pk, x0 = np.concatenate(obs), np.concatenate(pk), np.concatenate(x0)
+    sig = o.sigma[obs] * ledger.weights.image_sigma[obs][:, None]
+    n_pt = first[-1]
+    out = [(np.full(c.size, np.inf), np.full(c.size, np.inf)) for c in cands]
+    with np.errstate(all="ignore"):
+        try:
+            bad = ~np.all(np.isfinite(x0), axis=1)
+            if np.any(bad):
+                guess = model.initial_points(res.cam_params, o.cam_idx[obs], pk, o.xy[obs], n_pt)
+                x0[bad] = guess[bad]
+            Xk = intersect_points(model, res.cam_params, o.cam_idx[obs], pk, o.xy[obs], sig, n_pt=n_pt,
+                                  x0=x0).xyz
+        except (ValueError, np.linalg.LinAlgError, ArithmeticError):
+            if len(units) == 1:
+                return out
+            # one point that cannot be intersected does not take the others' checks with it
+            return [_point_fits(ledger, [u], [c])[0] for u, c in zip(units, cands)]
+        x = model.project(res.cam_params, o.cam_idx[obs], Xk[pk])
+        z = (x - o.xy[obs]) / sig
+    order = np.argsort(pk, kind="stable")
+    bounds = np.searchsorted(pk[order], np.arange(n_pt + 1))
+    zs = [z[order[bounds[i]:bounds[i + 1]]] for i in range(n_pt)]
+    return [_fit_stats(zs[first[j]:first[j + 1]]) for j in range(len(units))]
 
 
 def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dict, options=None, trials=None,
@@ -333,16 +365,17 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
     for kind, of, removed in (("image", o.cam_idx, by["baarda"]),
                               ("point", o.pt_idx, np.union1d(by["baarda"], by["sequent"]))):
         removed = removed[ledger.weights.image_weight[removed] == 0.0] if removed.size else removed
+        # a swap changes only its own unit's observations, so every unit's candidates can be gathered first
+        units, cands, rems = [], [], []
         for unit in np.unique(of[removed]):
             unit = int(unit)
             if (kind, unit) in done:
                 continue
-            act = ledger.active
             mine = np.flatnonzero(of == unit)
             rem = np.intersect1d(mine, removed)
             rem = rem[ledger.weights.image_weight[rem] == 0.0]
             # a point set aside keeps the weights of its rays: they are candidates too
-            live = act[mine] if kind == "image" else ledger.weights.image_weight[mine] > 0
+            live = ledger.active[mine] if kind == "image" else ledger.weights.image_weight[mine] > 0
             cand = np.union1d(mine[live], rem)
             if kind == "image":     # a resection needs the adjusted points: none of points set aside
                 cand = cand[~ledger.weights.dropped_points[o.pt_idx[cand]]
@@ -350,14 +383,19 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
             if rem.size < max(2, cand.size // 3) or not (min_rays <= cand.size <= max_rays):
                 continue
             done.add((kind, unit))
-            rms, top = _local_fits(ledger, kind, unit, cand)
+            units.append(unit)
+            cands.append(cand)
+            rems.append(rem)
+        fits = _point_fits(ledger, units, cands) if kind == "point" else None
+        for j, (unit, cand, rem) in enumerate(zip(units, cands, rems)):
+            rms, top = fits[j] if fits is not None else _image_fits(ledger, unit, cand)
             order = np.argsort(rms)
             best = int(order[0])
             if not (top[best] <= DECISIVE * limit and rms[order[1]] >= DECISIVE * rms[best]):
                 if kind != "image" or trials is None or trials["left"] < cand.size:
                     continue
                 trials["left"] -= cand.size
-                cost = _trial_costs(ledger, cand, unit if kind == "image" else -1, options)
+                cost = _trial_costs(ledger, cand, unit, options)
                 order = np.argsort(cost)
                 best = int(order[0])
                 if not (np.isfinite(cost[best]) and 2.0 * (cost[order[1]] - cost[best]) >= limit ** 2):
