@@ -233,7 +233,12 @@ def quality_control(problem: BundleProblem, steps: Sequence[str] = ("sequent", "
             if robust_first:
                 sigma0_first = out["sigma0"]
         elif step == "baarda":
-            out = snooping_step(ledger, options=opt.solver, **opt.baarda)
+            kw = dict(opt.baarda)
+            # after a robust adjustment its solution is the better start; before one, the a-priori values
+            # (the navigation) are, and the first rounds are linearised there
+            kw.setdefault("linearised", "robust" not in steps[:steps.index("baarda")])
+            out = snooping_step(ledger, options=opt.solver, **kw)
+            summary["baarda_linear_rounds"] = out["linear_rounds"]
             summary["baarda_rounds"] = out["rounds"]
             summary["max_w"] = out["max_w"]
             summary["untestable"] = out["untestable"]

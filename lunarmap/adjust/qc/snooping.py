@@ -424,7 +424,7 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
 def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_rounds: int = 500,
                   per_round: str = "one", sigma0: str = "apriori", min_redundancy: float = 0.02,
                   max_downweights: int = 3, reinstate: bool = True, stripped: bool = True,
-                  trial_observations: int = 20000, max_trials: int = 200,
+                  trial_observations: int = 20000, max_trials: int = 200, linearised: bool = True,
                   options: SolverOptions | None = None) -> dict:
     """Data snooping on the ledger's problem until no w-test exceeds ``limit`` (module docstring).
 
@@ -457,11 +457,23 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
     hits_ctl: dict[int, int] = {}
     tests = {}
     rnd = 0
+    linear, n_linear = linearised, 0
+    if linear:
+        # points an earlier non-linear adjustment set aside (dragged onto a projection centre) are judged by
+        # their rays in the linear model
+        ledger.reinstate_set_aside("baarda")
     for rnd in range(1, max_rounds + 1):
-        ledger.adjust(options)
+        if linear and ledger.adjust_linearised(options) is not None:
+            n_linear += 1
+        else:
+            linear = False
+            ledger.adjust(options)
         try:
             tests = w_tests(ledger, sigma0, min_redundancy)
         except QualityControlError:
+            if linear:
+                linear = False      # test the non-linear adjustment instead
+                continue
             # no precision at this state (gross errors distort it beyond repair): remove the image
             # observation with the largest normalised residual, without a w-test, and go on
             res = ledger.result
@@ -494,6 +506,11 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
                 row = int(np.nanargmax(np.where(np.isnan(aw), -1, aw)))
                 cands.append((aw[row], "term", t, row))
         if not cands:
+            if linear:
+                # no test fails in the linear model: the rounds go on non-linear, from its solution, where
+                # stripped images and points and the reinstatement are judged
+                linear = False
+                continue
             if stripped and _stripped_swaps(ledger, limit, resected, rnd, hits_term, options, trials):
                 continue
             if not reinstate:
@@ -542,5 +559,5 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
         tests = w_tests(ledger, sigma0, min_redundancy)
     allw = np.concatenate([np.abs(tests["image"]).ravel(), np.abs(tests["control"]).ravel()] +
                           [np.abs(w) for w in tests["terms"]])
-    return {"rounds": rnd, "max_w": float(np.nanmax(allw)) if np.any(np.isfinite(allw)) else np.nan,
+    return {"rounds": rnd, "linear_rounds": n_linear, "max_w": float(np.nanmax(allw)) if np.any(np.isfinite(allw)) else np.nan,
             "untestable": tests.get("untestable", 0), "tests": tests}
