@@ -400,6 +400,12 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
                 best = int(order[0])
                 if not (np.isfinite(cost[best]) and 2.0 * (cost[order[1]] - cost[best]) >= limit ** 2):
                     continue
+                # and the observations it gives back fit: an image with a second error of its own would get
+                # that one back (each given-back coordinate allowed limit**2, the w-test's own bound)
+                n_back = 2 * (rem.size - 1) + sum(int(np.sum(ledger.weights.term_sigma[t][r] > 1.0))
+                                                  for t, r in enumerate(_nav_rows(ledger, unit)))
+                if 2.0 * (cost[best] - ledger.result.cost) > limit ** 2 * max(n_back, 1):
+                    continue
             out = int(cand[best])
             back = np.setdiff1d(rem, [out])
             live_out = ledger.weights.image_weight[out] > 0
@@ -425,6 +431,7 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
                   per_round: str = "one", sigma0: str = "apriori", min_redundancy: float = 0.02,
                   max_downweights: int = 3, reinstate: bool = True, stripped: bool = True,
                   trial_observations: int = 20000, max_trials: int = 200, linearised: bool = True,
+                  linear_until: float | None = None,
                   options: SolverOptions | None = None) -> dict:
     """Data snooping on the ledger's problem until no w-test exceeds ``limit`` (module docstring).
 
@@ -458,6 +465,7 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
     tests = {}
     rnd = 0
     linear, n_linear = linearised, 0
+    until = limit if linear_until is None else max(float(linear_until), limit)
     if linear:
         # points an earlier non-linear adjustment set aside (dragged onto a projection centre) are judged by
         # their rays in the linear model
@@ -505,6 +513,8 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
             if aw.size and np.nanmax(np.where(np.isnan(aw), -1, aw)) > limit:
                 row = int(np.nanargmax(np.where(np.isnan(aw), -1, aw)))
                 cands.append((aw[row], "term", t, row))
+        if linear and cands and max(c[0] for c in cands) <= until:
+            cands = []          # no gross error left: the rest is for the non-linear rounds
         if not cands:
             if linear:
                 # no test fails in the linear model: the rounds go on non-linear, from its solution, where
