@@ -171,9 +171,10 @@ def _reinstatable(ledger: Ledger, limit: float, done: set) -> NDArray[np.int64]:
     return removed[np.all(np.isfinite(z), axis=1) & (np.max(z, axis=1) <= limit)]
 
 
-def _restorable(ledger: Ledger, limit: float, done: set) -> list:
+def _restorable(ledger: Ledger, limit: float, done: set, every: bool = False) -> list:
     """Down-weighted navigation rows and control points whose whitened residual at their a-priori weight is
-    within the limit (see :func:`_reinstatable`); keys ``("term", t, row)`` / ``("control", k)``."""
+    within the limit (see :func:`_reinstatable`); keys ``("term", t, row)`` / ``("control", k)``. ``every``:
+    all of them, whatever their residual (each once)."""
     res = ledger.result
     out = []
     for t, f in enumerate(ledger.weights.term_sigma):
@@ -182,7 +183,8 @@ def _restorable(ledger: Ledger, limit: float, done: set) -> list:
             continue
         rx, _ = res.problem.terms[t].linearize(res.cam_params, res._term_extra(t))
         z = np.abs(rx[rows]) * f[rows]          # back to the a-priori sigma
-        out += [("term", t, int(r)) for r, zz in zip(rows, z) if zz <= limit and ("term", t, int(r)) not in done]
+        out += [("term", t, int(r)) for r, zz in zip(rows, z)
+                if (every or zz <= limit) and ("term", t, int(r)) not in done]
     k = np.flatnonzero(ledger.weights.control_sigma > 1.0)
     if k.size:
         pt = prior_terms(res.problem, res.points)
@@ -192,7 +194,7 @@ def _restorable(ledger: Ledger, limit: float, done: set) -> list:
             if base.fixed[kk]:
                 continue
             z = np.max(np.abs(pt[1][rows[kk]])) * ledger.weights.control_sigma[kk]
-            if z <= limit and ("control", int(kk)) not in done:
+            if (every or z <= limit) and ("control", int(kk)) not in done:
                 out.append(("control", int(kk)))
     return out
 
@@ -526,7 +528,10 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
             if not reinstate:
                 break
             back = _reinstatable(ledger, limit, reinstated)
-            rows = _restorable(ledger, limit, restored)
+            # a navigation row down-weighted while an error pulled its image leaves the image free to slide
+            # where position and attitude trade (a narrow camera sees their sum): its residual then says
+            # nothing, so each row is given its weight back once, together with its partners, and tested again
+            rows = _restorable(ledger, limit, restored, every=True)
             if not back.size and not rows:
                 break
             reinstated.update(int(i) for i in back)
