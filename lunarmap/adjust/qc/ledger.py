@@ -105,6 +105,7 @@ class Ledger:
         self._track_start = np.searchsorted(o.pt_idx[self._track_order], np.arange(problem.n_points + 1))
         self._touched: set[int] = set()
         self._adjusted = False
+        self._linear_points: NDArray | None = None
         self.step = "adjust"      # the step running, for decisions taken inside adjust()
 
     # -- state -----------------------------------------------------------------------------------
@@ -196,8 +197,15 @@ class Ledger:
             opts = dataclasses.replace(opts, check_datum=False)
         o = self.base.obs
         touched = set(self._touched)
+        if self._linear_points is None:
+            # every point at its intersection through the a-priori images: a start that is only the model's
+            # guess (narrow rays) is too far for one step, and its residuals would fail the tests (measured:
+            # w = 17 on a block without errors)
+            self._touched = set(range(self.base.n_points))
+            self._linear_points = self._reintersect(self.base.cam_params, self.base.points.copy())
+            self._touched = set(touched)
         self._touched.update(int(j) for j in np.unique(o.pt_idx[~(self.weights.image_weight > 0)]))
-        start = SimpleNamespace(cam_params=self.base.cam_params, points=self.base.points)
+        start = SimpleNamespace(cam_params=self.base.cam_params, points=self._linear_points)
         res = solve(self._finite(self.problem(start)), opts)
         self._adjusted = True
         if res.accepted == 0 or self._degenerate(res).size:
