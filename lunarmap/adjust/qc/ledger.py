@@ -78,6 +78,11 @@ class Decision:
         return asdict(self)
 
 
+#: a point whose intersection through the a-priori images lies this many times the median point's distance
+#: from its guess has an error of hundreds of pixels and is not a start for the linearised rounds
+RUNAWAY = 10.0
+
+
 class Ledger:
     """Weights and decisions of a quality-controlled adjustment of ``problem`` (module docstring).
 
@@ -200,15 +205,32 @@ class Ledger:
         if self._linear_points is None:
             # every point at its intersection through the a-priori images: a start that is only the model's
             # guess (narrow rays) is too far for one step, and its residuals would fail the tests (measured:
-            # w = 17 on a block without errors)
+            # w = 17 on a block without errors); but a 2-ray point with an error of thousands of pixels
+            # intersects thousands of km away (measured: 2,800 km, the step rejected), and then the model's
+            # guess is the better start for that point (next: the points that moved more than RUNAWAY times the
+            # median move back at the guess, then every point at its guess)
             self._touched = set(range(self.base.n_points))
-            self._linear_points = self._reintersect(self.base.cam_params, self.base.points.copy())
+            guess = self.base.points.copy()
+            X = self._reintersect(self.base.cam_params, guess.copy())
+            moved = np.linalg.norm(X - guess, axis=1)
+            far = moved > RUNAWAY * np.median(moved)
+            starts = [X, np.where(far[:, None], guess, X), guess] if far.any() else [X, guess]
             self._touched = set(touched)
+        else:
+            starts = [self._linear_points]
         self._touched.update(int(j) for j in np.unique(o.pt_idx[~(self.weights.image_weight > 0)]))
-        start = SimpleNamespace(cam_params=self.base.cam_params, points=self._linear_points)
-        res = solve(self._finite(self.problem(start)), opts)
-        self._adjusted = True
-        if res.accepted == 0 or self._degenerate(res).size:
+        lost = set(self._touched)
+        res = None
+        for pts in starts:
+            self._touched = set(lost)
+            start = SimpleNamespace(cam_params=self.base.cam_params, points=pts)
+            res = solve(self._finite(self.problem(start)), opts)
+            self._adjusted = True
+            if res.accepted > 0 and not self._degenerate(res).size:
+                self._linear_points = pts
+                break
+            res = None
+        if res is None:
             self._touched = touched     # the next (non-linear) adjustment starts from the last result
             return None
         self.result = res

@@ -28,6 +28,17 @@ lost a third of its observations is checked by leaving each of them out in turn 
 the adjusted points, the point intersected; the whole block adjusted per leave-out for images of blocks
 up to ``trial_observations``); a decisive culprit is removed and the good ones reinstated.
 
+Rounds linearised at the navigation (``linearised``, the default unless a robust adjustment came
+first) come before the non-linear ones: one Gauss-Newton step from the a-priori images and the points
+intersected through them (:meth:`~.ledger.Ledger.adjust_linearised`), until no test fails (or the largest
+``|w|`` is below ``linear_until``). Errors of thousands of sigma drag the non-linear adjustment hundreds of
+km from the navigation, where its w-tests no longer point at them; in the linear model each error shows in
+its own residual with its redundancy number's share (measured on the DLR blocks, Baarda alone, 20
+draws: all 23 errors in 18 instead of 15, no false removal in 16 instead of 6). The non-linear rounds
+then finish: once no test fails, every down-weighted navigation and control row gets its a-priori
+weight back once and is tested again (freed, an image slides where position and attitude trade, and
+its residual says nothing).
+
 ``per_round="point"`` acts in one round on the largest failing image observation of every point
 (and the largest failing navigation / control observation), for large blocks where one removal
 per adjustment would take too many rounds; the paper's way is ``"one"``.
@@ -344,7 +355,8 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
     snooping or to Sequent, each of its observations (active or removed; for an image, on points still in
     the block) is left out in turn: the image resected on the adjusted points, the point intersected from
     the adjusted images. A leave-out is decisive if it fits the others within ``DECISIVE`` limits and every
-    other leave-out leaves an RMS ``DECISIVE`` times larger. Where none is for an image (its points carry too
+    other leave-out leaves an RMS ``DECISIVE`` times larger or, for a point, a chi-square larger by
+``limit**2`` (its leave-outs differ in one ray: the likelihood-ratio test). Where none is for an image (its points carry too
     much of the error's pull) and the block is small (``trials``), the whole block is adjusted once per
     leave-out and the lowest cost is decisive if the next is higher by ``limit**2 / 2`` (a likelihood-ratio
     test). The
@@ -393,7 +405,12 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
             rms, top = fits[j] if fits is not None else _image_fits(ledger, unit, cand)
             order = np.argsort(rms)
             best = int(order[0])
-            if not (top[best] <= DECISIVE * limit and rms[order[1]] >= DECISIVE * rms[best]):
+            # or, for a point, the likelihood-ratio test of the image trials below: the leave-outs differ in one
+            # ray, and an error along the epipolar line of all but one good ray leaves that ray's leave-out an
+            # RMS only ~2x the error's (measured: 1.65 vs 0.74 over 10 coordinates, chi-square 27.2 vs 5.5)
+            n_z = 2 * (cand.size - 1)
+            lr = kind == "point" and n_z * (rms[order[1]] ** 2 - rms[best] ** 2) >= limit ** 2
+            if not (top[best] <= DECISIVE * limit and (rms[order[1]] >= DECISIVE * rms[best] or lr)):
                 if kind != "image" or trials is None or trials["left"] < cand.size:
                     continue
                 trials["left"] -= cand.size
