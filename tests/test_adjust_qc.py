@@ -110,6 +110,21 @@ def test_linearised_rounds_fall_back_to_the_model_guess_where_an_intersection_ru
     assert s["found"] == 23 and s["false_images"] + s["false_navigation"] + s["false_control"] <= 1
 
 
+def test_snooping_after_a_robust_adjustment_gives_back_what_the_robust_weights_cut():
+    """Draw 9, the paper's order Sequent -> robust -> Baarda: the Danish weights cut the good rays that large
+    errors pull (point 23: three good rays; point 1: set aside), and with weight 0 they
+    were never tested again: 8 good image observations out and the control error missed (measured). Snooping
+    now gives back robust removals like its own (predicted within the limit) and checks the points and
+    images they stripped: all 23, nothing good."""
+    sim = inject_blunders(dlr_block(seed=9, example="blunders"), seed=1009)
+    qc = quality_control(dlr_problem(sim), ("sequent", "robust", "baarda"), image_group=sim.block.camera,
+                         options=QCOptions(solver=SolverOptions(ftol=1e-8)))
+    s = score(sim, qc)
+    print("draw 9, sequent -> robust -> baarda:", s)
+    assert any(d.step == "baarda" and d.action == "reinstated" and d.kind == "image" for d in qc.report.decisions)
+    assert s["found"] == 23 and s["false_images"] + s["false_navigation"] + s["false_control"] == 0
+
+
 @pytest.mark.parametrize("draw, stripped", [(0, "image"), (13, "point")])
 def test_baarda_alone_swaps_an_error_that_stripped_its_image_or_point(draw, stripped):
     """Draw 0: a 2,000-px error pulled its image's orientation and one-at-a-time snooping removed 7 of the

@@ -16,8 +16,8 @@ is not removed but down-weighted, ``P_new = P_old / factor`` (the paper: 5); an 
 already down-weighted ``max_downweights`` times and still failing is flagged and its weight cut
 to ``1e-6`` of the a-priori one.
 
-Once no test fails, image observations removed earlier that the final adjustment predicts within
-the limit are given back (``reinstate``, once each) and the testing goes on: while large errors are
+Once no test fails, image observations removed earlier (by the snooping or by a robust adjustment
+before it) that the final adjustment predicts within the limit are given back (``reinstate``, once each) and the testing goes on: while large errors are
 still in the block they spread into the other observations of their points, and the largest
 w-test may point at a good one.
 
@@ -161,6 +161,12 @@ def _term_info(ledger: Ledger, t: int, row: int) -> tuple[int, int, str]:
     return img, par, f"{getattr(term, 'name', 'navigation')} {kind} orbit {label}"
 
 
+#: steps whose image-observation removals data snooping may give back: its own and a robust adjustment's (a
+#: redescending weight function cuts good observations near a large error, whose weight 0 then hides them
+#: from the w-tests for good)
+REINSTATABLE_STEPS = ("baarda", "robust")
+
+
 def _reinstatable(ledger: Ledger, limit: float, done: set) -> NDArray[np.int64]:
     """Image observations removed by data snooping that the final adjustment predicts within the limit.
 
@@ -172,7 +178,7 @@ def _reinstatable(ledger: Ledger, limit: float, done: set) -> NDArray[np.int64]:
     """
     res = ledger.result
     o = ledger.base.obs
-    removed = np.array([d.index for d in ledger.decisions if d.step == "baarda" and d.kind == "image"
+    removed = np.array([d.index for d in ledger.decisions if d.step in REINSTATABLE_STEPS and d.kind == "image"
                         and d.action == "removed" and d.index not in done], np.int64)
     removed = removed[ledger.weights.image_weight[removed] == 0.0] if removed.size else removed
     if removed.size == 0:
@@ -369,15 +375,16 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
         The number of swaps made.
     """
     o = ledger.base.obs
-    # Sequent's removals too: a gross error along the epipolar line can pair with a good ray, and Sequent then
-    # removes the point's other good rays (and the point with them)
+    # Sequent's and a robust adjustment's removals too: a gross error along the epipolar line can pair with a
+    # good ray, and Sequent then removes the point's other good rays (and the point with them); a redescending
+    # weight function cuts the good rays a large error pulls
     by = {step: np.array(sorted({d.index for d in ledger.decisions if d.step == step and d.kind == "image"
-                                 and d.action == "removed"}), np.int64) for step in ("baarda", "sequent")}
+                                 and d.action == "removed"}), np.int64) for step in ("baarda", "sequent", "robust")}
     n_swaps = 0
     # an image's swap assumes one error of its own: it does not undo Sequent's removals, which judged the
     # rays of a point (an image with two errors would get one back)
-    for kind, of, removed in (("image", o.cam_idx, by["baarda"]),
-                              ("point", o.pt_idx, np.union1d(by["baarda"], by["sequent"]))):
+    for kind, of, removed in (("image", o.cam_idx, np.union1d(by["baarda"], by["robust"])),
+                              ("point", o.pt_idx, np.union1d(np.union1d(by["baarda"], by["sequent"]), by["robust"]))):
         removed = removed[ledger.weights.image_weight[removed] == 0.0] if removed.size else removed
         # a swap changes only its own unit's observations, so every unit's candidates can be gathered first
         units, cands, rems = [], [], []
