@@ -17,9 +17,9 @@ already down-weighted ``max_downweights`` times and still failing is flagged and
 to ``1e-6`` of the a-priori one.
 
 Once no test fails, image observations removed earlier (by the snooping or by a robust adjustment
-before it) that the final adjustment predicts within the limit are given back (``reinstate``, once each) and the testing goes on: while large errors are
-still in the block they spread into the other observations of their points, and the largest
-w-test may point at a good one.
+before it) that the final adjustment predicts within the limit are given back (``reinstate``, once
+each) and the testing goes on: while large errors are still in the block they spread into the other
+observations of their points, and the largest w-test may point at a good one.
 
 Before that, images and points stripped around a gross error of their own (``stripped``): an error
 that pulls its image's orientation or its point makes the w-tests of the good observations around it
