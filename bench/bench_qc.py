@@ -16,7 +16,9 @@ Parts (``--part``, several allowed):
   with injected gross errors vs one plain solve, all ratios within one run;
 * ``mismatches`` -- the synthetic block mission (rendered images, tie points from the matcher,
   check points measured at 0.3 px): check-point errors of the clean adjustment vs quality-controlled
-  adjustments with 20 % and 50 % of the tie-point observations displaced by 4-40 px.
+  adjustments with 20 % and 50 % of the tie-point observations displaced by 4-40 px;
+* ``misses`` -- for the image errors a run of ``--steps`` leaves in the block (``--draw-list``): the
+  leave-one-out fits of the error's point, to tell an undecidable error from a miss of the method.
 
 Every line of output is also a JSON record (``--json FILE``). The machine is shared: report the load
 average with any timing (printed).
@@ -24,6 +26,7 @@ average with any timing (printed).
     python bench/bench_qc.py --part blunders variance offsets --draws 20
     python bench/bench_qc.py --part scale --sizes medium large1m xl4000 [--old]
     python bench/bench_qc.py --part mismatches
+    python bench/bench_qc.py --part misses --draw-list 8 13 --steps sequent baarda
 """
 
 from __future__ import annotations
@@ -100,6 +103,41 @@ def part_blunders(draws: int) -> None:
 
 
 # --- Tables 4-5 --------------------------------------------------------------------------------------
+
+def part_misses(draws: list[int], steps: tuple) -> None:
+    """For every image error a run of ``steps`` leaves in the block: the leave-one-out fits of its point's rays
+    (each ray left out in turn, the point intersected from the others through the adjusted images; RMS of the
+    others' whitened residuals). An error whose leave-out is not clearly the best one cannot be told from a
+    good ray by the data."""
+    from qchelp import dlr_problem, score
+
+    from lunarmap.adjust import SolverOptions
+    from lunarmap.adjust.intersection import intersect_points
+    from lunarmap.adjust.qc import QCOptions, quality_control
+    from lunarmap.simulate import dlr_block, inject_blunders
+
+    for d in draws:
+        sim = inject_blunders(dlr_block(seed=d, example="blunders"), seed=1000 + d)
+        pb = dlr_problem(sim)
+        qc = quality_control(pb, steps, image_group=sim.block.camera, options=QCOptions(solver=SolverOptions(ftol=1e-8)))
+        out = set(qc.removed_image_observations.tolist())
+        o, res = pb.obs, qc.result
+        for i, g in zip(sim.blunders.image_obs, sim.blunders.image_group):
+            if int(i) in out:
+                continue
+            rays = np.flatnonzero(o.pt_idx == o.pt_idx[i])
+            rms = []
+            for k in rays:
+                keep = rays[rays != k]
+                X = intersect_points(pb.model, res.cam_params, o.cam_idx[keep], np.zeros(keep.size, np.int64),
+                                     o.xy[keep], o.sigma[keep], n_pt=1).xyz
+                x = pb.model.project(res.cam_params, o.cam_idx[keep], np.repeat(X, keep.size, axis=0))
+                rms.append(float(np.sqrt(np.mean(((x - o.xy[keep]) / o.sigma[keep]) ** 2))))
+            gone = [int(k) for k in rays if int(k) in out]
+            emit("misses", draw=d, strategy="->".join(steps), observation=int(i), size="large" if g == 1 else "small",
+                 point=int(o.pt_idx[i]), rays=[int(k) for k in rays], removed_instead=gone,
+                 leave_one_out_rms=[round(r, 2) for r in rms], score=score(sim, qc))
+
 
 def part_variance(draws: int) -> None:
     from qchelp import dlr_problem
@@ -367,8 +405,10 @@ def part_mismatches(seed: int, fractions: list[float], variants=MISMATCH_VARIANT
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--part", nargs="+", default=["blunders", "variance", "offsets"],
-                    choices=["blunders", "variance", "offsets", "scale", "scale-one", "mismatches"])
+                    choices=["blunders", "variance", "offsets", "scale", "scale-one", "mismatches", "misses"])
     ap.add_argument("--draws", type=int, default=20)
+    ap.add_argument("--draw-list", type=int, nargs="*", help="(misses) these draws instead of range(--draws)")
+    ap.add_argument("--steps", nargs="+", default=["baarda"], help="(misses) the QC steps run")
     ap.add_argument("--sizes", nargs="+", default=["medium", "large1m", "xl4000"], choices=sorted(SIZES))
     ap.add_argument("--old", action="store_true", help="also time the column-solve precision (slow at 4,000 images)")
     ap.add_argument("--qc", action="store_true", help="(scale-one) also time a full QC run")
@@ -386,6 +426,8 @@ def main(argv=None):
             part_variance(args.draws)
         elif part == "offsets":
             part_offsets(args.draws)
+        elif part == "misses":
+            part_misses(args.draw_list or list(range(args.draws)), tuple(args.steps))
         elif part == "scale":
             part_scale(args.sizes, args.old, args.qc_sizes)
         elif part == "scale-one":
