@@ -171,22 +171,31 @@ def part_variance(draws: int) -> None:
                 ests[sname] = est
                 emit("variance", example=ex, draw=d, start=sname, names=vc.names, estimate=np.round(est, 4).tolist(),
                      sigma=np.round(vc.scale_sigma * est / vc.scale, 4).tolist(),
+                     sigma_joint=np.round(vc.scale_sigma_joint * est / vc.scale, 4).tolist(),
+                     correlation_pos_att=[round(float(vc.correlation[vc.names.index(f"navigation attitude orbit {o}"),
+                                                                     vc.names.index(f"navigation position orbit {o}")]), 3)
+                                          for o in (0, 1)],
                      realised=[round(float(realised.get(n, np.nan)), 4) for n in vc.names],
                      estimated=vc.estimated.tolist(), redundancy=np.round(vc.redundancy, 1).tolist(),
                      rounds=len(vc.history), converged=vc.converged, seconds=round(time.perf_counter() - t0, 2))
-                rows.append((vc.names, est, vc.estimated, [realised.get(n, np.nan) for n in vc.names]))
+                rows.append((vc.names, est, vc.estimated, [realised.get(n, np.nan) for n in vc.names],
+                             vc.scale_sigma_joint * est / vc.scale))
             spread = max(np.max(np.abs(ests[a] - ests["x100"]) / ests["x100"]) for a in ests)
             emit("variance-starts", example=ex, draw=d, max_relative_difference_between_starts=round(float(spread), 5))
         names = rows[0][0]
         E = np.array([r[1] for r in rows])
         M = np.array([r[2] for r in rows])
         R = np.array([r[3] for r in rows], float)
+        S = np.array([r[4] for r in rows], float)
         for i, n in enumerate(names):
             ok = M[:, i]
             emit("variance-summary", example=ex, group=n, runs=int(len(E)), estimated=int(ok.sum()),
                  within_10pct_of_simulated=int(np.sum(ok & (np.abs(E[:, i] - 1) <= 0.1))),
                  within_10pct_of_realised=int(np.sum(ok & (np.abs(E[:, i] / R[:, i] - 1) <= 0.1))) if n in
                  (rows[0][0][2:]) else None,
+                 # every estimate, frozen ones too, against its joint sigma (the trade-off with other groups)
+                 within_2_joint_sigma=int(np.sum(np.abs(E[:, i] - 1) <= 2 * S[:, i])),
+                 median_joint_sigma=round(float(np.nanmedian(S[:, i])), 4),
                  median_estimate=round(float(np.median(E[ok, i])), 4) if ok.any() else None,
                  rms_relative_error=round(float(np.sqrt(np.mean((E[ok, i] - 1) ** 2))), 4) if ok.any() else None)
 

@@ -191,6 +191,55 @@ def test_variance_factors_are_one_at_the_simulated_sigmas_on_average():
     assert np.all(np.abs(m - 1.0) < 3.0 * se + 0.03)
 
 
+def test_joint_variance_covariance_rests_on_the_redundancy_matrix_of_the_adjustment():
+    """The dense redundancy matrix behind the joint covariance of variance components: its diagonal is the
+    redundancy numbers the precision module computes its own way (Schur complement, selected inversion), and
+    the square sums of its residuals of Gaussian noise (least squares by numpy, 4,000 draws) have the
+    covariance 2 H = 4 D^-1 the joint covariance D says."""
+    from lunarmap.adjust.variance import _dense_design, variance_component_covariance
+
+    sim = dlr_block(seed=0, example="I")
+    pb = dlr_problem(sim)
+    res = solve(pb, OPTS)
+    groups = observation_groups(pb, image_group=sim.block.camera)
+    J, g = _dense_design(res, groups)
+    q, _ = np.linalg.qr(J)
+    pr = res.precision()
+    ref = np.concatenate([pr.redundancy_numbers.ravel()] + list(pr.term_redundancy) + [pr.control_redundancy.ravel()])
+    assert np.max(np.abs((1.0 - np.sum(q * q, axis=1)) - ref)) < 1e-9
+    D, corr = variance_component_covariance(res, groups)
+    rng = np.random.default_rng(3)
+    e = rng.standard_normal((J.shape[0], 4000))
+    v = e - J @ np.linalg.lstsq(J, e, rcond=None)[0]
+    Q = np.array([np.sum(v[g == k] ** 2, axis=0) for k in range(groups.n)])
+    emp, pred = np.cov(Q), 4.0 * np.linalg.inv(D)
+    print("empirical / predicted Cov(q) diagonal:", np.round(np.diag(emp) / np.diag(pred), 3))
+    assert np.allclose(np.diag(emp) / np.diag(pred), 1.0, atol=0.1)
+    emp_corr = emp / np.sqrt(np.outer(np.diag(emp), np.diag(emp)))
+    pred_corr = pred / np.sqrt(np.outer(np.diag(pred), np.diag(pred)))
+    assert np.max(np.abs(emp_corr - pred_corr)) < 0.06
+
+
+def test_variance_components_report_the_groups_the_data_cannot_separate():
+    """Example I, draw 0: the narrow camera sees the navigation position and attitude of orbit 0 only as a
+    sum; the position group runs to the boundary and is frozen there, the attitude group takes both
+    (estimate ~1.45). The joint covariance says so: correlation near -1 and a sigma of the attitude
+    estimate of the size of the estimate itself, while the image groups keep sigma ~ 1/sqrt(2 r)."""
+    sim = dlr_block(seed=0, example="I")
+    pb = dlr_problem(sim)
+    groups = observation_groups(pb, image_group=sim.block.camera)
+    vc = estimate_variance_components(pb, groups, OPTS, rounds=150, on_weak="freeze")
+    i_att, i_pos = vc.names.index("navigation attitude orbit 0"), vc.names.index("navigation position orbit 0")
+    print(vc.names, "\nscale", np.round(vc.scale, 3), "\njoint sigma", np.round(vc.scale_sigma_joint, 3),
+          "\ncorrelation att/pos orbit 0", round(float(vc.correlation[i_att, i_pos]), 3))
+    assert not vc.estimated[i_pos]
+    assert vc.correlation[i_att, i_pos] < -0.9
+    assert vc.scale_sigma_joint[i_att] > 3.0 * vc.scale_sigma[i_att]
+    assert abs(vc.scale[i_att] - 1.0) < 2.0 * vc.scale_sigma_joint[i_att]
+    img = [vc.names.index("image 0"), vc.names.index("image 1")]
+    assert np.allclose(vc.scale_sigma_joint[img], vc.scale_sigma[img], rtol=0.1)
+
+
 def test_variance_component_of_a_group_without_redundancy_is_refused():
     sim = dlr_block(seed=1, example="I")
     pb = dlr_problem(sim)

@@ -13,6 +13,12 @@ the starting sigmas. The groups (:func:`observation_groups`) are the paper's: im
 per camera, navigation positions and attitudes per orbit, control points. This is also what the
 matcher's tie points need: least-squares matching reports its sigma from the fit of one window,
 while check and control measurements, made with a known sigma, keep theirs.
+
+``s_k / sqrt(2 r_k)`` ignores that groups can trade against each other: a narrow camera sees its
+navigation position and attitude only as a sum, and the data then fix their sum, not their split.
+:func:`variance_component_covariance` gives the joint (Helmert) covariance of all groups from the dense
+redundancy matrix of small blocks; its correlations name the groups the data cannot separate
+(measured on the DLR blocks: position / attitude of one orbit -0.96 to -0.997).
 """
 
 from __future__ import annotations
@@ -34,7 +40,8 @@ from .weights import Weights, reweighted_problem
 BOUNDARY_REDUNDANCY = 0.05
 
 __all__ = ["VarianceEstimate", "image_variance_factors", "estimate_image_variances", "ObservationGroups",
-           "observation_groups", "group_variance_factors", "VarianceComponents", "estimate_variance_components"]
+           "observation_groups", "group_variance_factors", "VarianceComponents", "estimate_variance_components",
+           "variance_component_covariance"]
 
 
 @dataclass
@@ -296,6 +303,14 @@ class VarianceComponents:
     result : AdjustmentResult
         The last adjustment.
     converged : bool
+    scale_sigma_joint : (k,), optional
+        Standard deviation of ``scale`` from the joint (Helmert) covariance of all estimated groups
+        (:func:`variance_component_covariance`): larger than ``scale_sigma`` where the data trade one
+        group against another. None for blocks above its size limit; NaN for groups not estimated (a
+        group frozen at the boundary, ``on_weak="freeze"``, counts as estimated here).
+    correlation : (k, k), optional
+        Correlation of the estimated groups' variance factors (NaN rows for groups not estimated);
+        near -1 for groups the data cannot separate.
     """
 
     names: list
@@ -308,6 +323,8 @@ class VarianceComponents:
     weights: Weights
     result: AdjustmentResult
     converged: bool
+    scale_sigma_joint: NDArray[np.float64] | None = None
+    correlation: NDArray[np.float64] | None = None
 
 
 def _apply_group_scale(w: Weights, groups: ObservationGroups, step: NDArray) -> None:
@@ -387,6 +404,7 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
     est = np.ones(k, bool) if estimate is None else np.asarray(estimate, bool).copy()
     if est.shape != (k,):
         raise QualityControlInputError(f"estimate needs {k} values (one per group), got {est.shape}")
+    frozen = np.zeros(k, bool)      # taken to the boundary by the iteration and left there ("freeze")
     w = Weights.neutral(problem) if weights is None else weights.copy()
     # the datum does not depend on the weights; extreme starting weights (x100 / x0.01 of the truth)
     # would trip the eigenvalue test of the first adjustment (the posterior precision still
@@ -442,6 +460,8 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
             if on_weak == "raise":
                 raise _weak_group(groups, r, n, int(np.argmax(weak)), min_redundancy)
             est &= ~weak
+            if on_weak == "freeze":
+                frozen |= weak
             if on_weak == "keep":
                 # back to the a-priori sigma of the weak groups, estimate the others again
                 total = _back_to_apriori(w, groups, total, weak)
@@ -474,6 +494,8 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
     if not converged and on_weak != "raise" and weak.any():
         # out of rounds with groups still below the redundancy needed: they are not estimated
         est &= ~weak
+        if on_weak == "freeze":
+            frozen |= weak
         if on_weak == "keep":
             total = _back_to_apriori(w, groups, total, weak)
             result = solve(reweighted_problem(problem, w, result.cam_params, result.points, terms), opts)
@@ -484,5 +506,106 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
             f"group {groups.names[j]!r} has redundancy {r[j]:.2f} ({int(n[j])} observations) after {rounds} "
             f"rounds: its variance component cannot be estimated (needs >= {min_redundancy:g})")
     scale = total * np.sqrt(np.where(est & np.isfinite(f) & (f > 0), f, 1.0))
+    joint = corr = None
+    # a group frozen at the boundary was estimated until the data could not tell it from another: the joint
+    # covariance shows with which (its sigma is the trade-off's, not the sigma of a known group)
+    cov = variance_component_covariance(result, groups, est | frozen)
+    if cov is not None:
+        D, corr = cov
+        joint = scale * np.sqrt(np.diag(D)) / 2.0
     return VarianceComponents(list(groups.names), scale, scale / np.sqrt(2.0 * np.maximum(r, 1e-12)), r, n, est,
-                              history, w, result, converged)
+                              history, w, result, converged, joint, corr)
+
+
+#: the joint covariance of variance components needs the dense redundancy matrix: blocks up to this many
+#: observation rows
+JOINT_MAX_ROWS = 3000
+
+
+def _dense_design(result: AdjustmentResult, groups: ObservationGroups) -> tuple[NDArray, NDArray]:
+    """The whitened design matrix of the adjustment's free unknowns (image rows, camera-level term rows,
+    control rows), and the group of every row (-1: none)."""
+    from .normal import Terms, linearize
+
+    pb = result.problem
+    st = result.structure
+    terms = Terms(pb)
+    fixed_pt = pb.point_fixed()
+    lin = linearize(pb, result.state, st, terms, fixed_pt)
+    o = pb.obs
+    p = lin.Ac.shape[2]
+    n_red = result.free_red.size
+    img = np.flatnonzero(result.state.obs_weight > 0)
+    m_img = 2 * img.size
+    m_t = 0 if lin.Jx is None else lin.Jx.shape[0]
+    pt = prior_terms(pb, result.points)
+    m_p = 0 if pt is None else 3 * pt[0].size
+    J = np.zeros((m_img + m_t + m_p, n_red + 3 * pb.n_points))
+    rows = np.arange(m_img).reshape(-1, 2)
+    cols = o.cam_idx[img][:, None] * p + np.arange(p)
+    J[rows[:, :, None], cols[:, None, :]] = lin.Ac[img]
+    cols = n_red + o.pt_idx[img][:, None] * 3 + np.arange(3)
+    J[rows[:, :, None], cols[:, None, :]] = lin.Ap[img]
+    g = [np.repeat(groups.image[img], 2)]
+    if m_t:
+        J[m_img:m_img + m_t, :n_red] = lin.Jx.toarray()
+        g += list(groups.terms)
+    if m_p:
+        idx, _, W = pt
+        rows = m_img + m_t + np.arange(m_p).reshape(-1, 3)
+        cols = n_red + idx[:, None] * 3 + np.arange(3)
+        J[rows[:, :, None], cols[:, None, :]] = W
+        gc = -np.ones(idx.size, np.int64)
+        n_base = groups.control.size
+        weighted = ~pb.priors.fixed
+        mine = groups.control[weighted[:n_base]]      # weighted rows of the base priors come first
+        gc[:mine.size] = mine
+        g.append(np.repeat(gc, 3))
+    free = np.concatenate([result.free_red, np.repeat(~fixed_pt, 3)]) & np.any(J != 0.0, axis=0)
+    return J[:, free], np.concatenate(g).astype(np.int64)
+
+
+def variance_component_covariance(result: AdjustmentResult, groups: ObservationGroups,
+                                  estimated: NDArray | None = None, max_rows: int = JOINT_MAX_ROWS
+                                  ) -> tuple[NDArray, NDArray] | None:
+    """Joint covariance of the estimated groups' variance factors ``s_k^2`` at the adjustment (Helmert).
+
+    With ``R = I - A (A^T A)^-1 A^T`` the redundancy matrix of the whitened design ``A``, the square sums
+    ``q_k = v^T P_k v`` of normally distributed observations have ``Cov(q_k, q_l) = 2 H_kl``,
+    ``H_kl = sum_{i in k, j in l} R_ij^2`` (``H_kk ~ r_k`` when the groups do not interact), and at the
+    converged weights (all ``s_k^2 = 1``) the estimates have covariance ``D = 2 H^-1`` over the estimated
+    groups. Two groups the images see only as a sum (a narrow camera's navigation positions and
+    attitudes) show as a correlation near -1 and a ``sqrt(D_kk / 4)`` far above ``1 / sqrt(2 r_k)``.
+
+    Returns
+    -------
+    (D, correlation) : ((k, k), (k, k)), or None
+        NaN in the rows and columns of groups not estimated; None if the block has more than
+        ``max_rows`` observation rows (the redundancy matrix is dense).
+    """
+    k = groups.n
+    est = np.ones(k, bool) if estimated is None else np.asarray(estimated, bool)
+    n_rows = 2 * int(np.sum(result.state.obs_weight > 0)) + sum(t.size for t in groups.terms) + 3 * groups.control.size
+    if n_rows > max_rows:
+        return None
+    J, g = _dense_design(result, groups)
+    # R = I - A Q A^T through the thin QR of A (no normal matrix: its condition number is squared)
+    qmat, rr = np.linalg.qr(J)
+    keep = np.abs(np.diag(rr)) > 1e-12 * np.max(np.abs(np.diag(rr)))
+    qmat = qmat[:, keep]
+    R = -(qmat @ qmat.T)
+    R[np.diag_indices_from(R)] += 1.0
+    sel = np.flatnonzero(est)
+    G = np.zeros((g.size, sel.size))
+    for c, j in enumerate(sel):
+        G[g == j, c] = 1.0
+    H = G.T @ (R * R) @ G
+    D = np.full((k, k), np.nan)
+    corr = np.full((k, k), np.nan)
+    if sel.size:
+        Dk = 2.0 * np.linalg.pinv(H)
+        d = np.sqrt(np.maximum(np.diag(Dk), 0.0))
+        D[np.ix_(sel, sel)] = Dk
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr[np.ix_(sel, sel)] = Dk / np.outer(d, d)
+    return D, corr

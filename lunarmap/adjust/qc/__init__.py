@@ -269,6 +269,10 @@ def quality_control(problem: BundleProblem, steps: Sequence[str] = ("sequent", "
                                 "redundancy": ("group", vc.redundancy), "observations": ("group", vc.observations),
                                 "estimated": ("group", vc.estimated)},
                                coords={"group": np.array(vc.names, dtype=object)})
+        if vc.correlation is not None:
+            groups_ds["sigma_factor_sigma_joint"] = ("group", vc.scale_sigma_joint)
+            groups_ds["correlation"] = (("group", "group_other"), vc.correlation)
+            groups_ds = groups_ds.assign_coords(group_other=np.array(vc.names, dtype=object))
     report = QCReport(list(ledger.decisions), groups_ds, [] if off is None else off["rounds"], summary)
     return QCResult(res, res.problem, report, ledger, seq, vc, off)
 

@@ -14,6 +14,9 @@ from ...errors import QualityControlInputError
 
 __all__ = ["QCReport"]
 
+#: the table names the group another trades with when their variance factors correlate below minus this
+SEPARABLE_CORRELATION = 0.8
+
 _FIELDS = ("step", "round", "kind", "index", "image", "point", "component", "value", "redundancy", "action", "group")
 
 
@@ -27,7 +30,9 @@ class QCReport:
         Every observation removed, down-weighted or flagged, points dropped, images fixed.
     groups : xarray.Dataset or None
         Per observation group: ``sigma_factor`` (estimated sigma / a-priori sigma) with its standard
-        deviation, ``redundancy``, ``observations`` (variance components); absent if not estimated.
+        deviation, ``redundancy``, ``observations`` (variance components); for blocks small enough, the
+        standard deviation from the joint covariance of all groups (``sigma_factor_sigma_joint``) and the
+        groups' ``correlation`` (near -1: groups the data cannot separate); absent if not estimated.
     offsets : list of xarray.Dataset
         The offset/drift detection rounds (``"times 1"``, ``"times 2"``, ``"results"``).
     summary : dict
@@ -60,6 +65,8 @@ class QCReport:
                         coords={"decision": np.arange(len(self.decisions))})
         if self.groups is not None:
             g = self.groups.rename({k: f"group_{k}" for k in self.groups.data_vars}).rename({"group": "obs_group"})
+            if "group_other" in g.dims:
+                g = g.rename({"group_other": "obs_group_other"})
             ds = ds.merge(g)
             steps = sorted({d.step for d in self.decisions})
             names = list(self.groups["group"].values)
@@ -120,9 +127,18 @@ class QCReport:
                              f"{d.component:>4} {d.value:>10.3g} {d.redundancy:>6.3f}  {d.action} ({d.group})")
         if self.groups is not None:
             g = self.groups
-            lines.append(f"{'group':<36} {'sigma after/before':>18} {'+-':>7} {'redundancy':>10} {'obs':>5}")
+            joint = "correlation" in g
+            lines.append(f"{'group':<36} {'sigma after/before':>18} {'+-':>7} {'redundancy':>10} {'obs':>5}"
+                         + (f" {'+- joint':>8}  trades with" if joint else ""))
             for i, name in enumerate(g["group"].values):
                 est = "" if bool(g["estimated"].values[i]) else "  (not estimated)"
+                if joint:
+                    c = np.array(g["correlation"].values[i], float)
+                    c[i] = 0.0
+                    j = int(np.nanargmin(c)) if np.isfinite(c).any() else -1
+                    trade = (f" {g['group'].values[j]} ({c[j]:+.2f})" if j >= 0 and c[j] < -SEPARABLE_CORRELATION
+                             else "")
+                    est = f" {float(g['sigma_factor_sigma_joint'].values[i]):>8.4f} {trade}" + est
                 lines.append(f"{str(name):<36} {float(g['sigma_factor'].values[i]):>18.4f} "
                              f"{float(g['sigma_factor_sigma'].values[i]):>7.4f} {float(g['redundancy'].values[i]):>10.1f} "
                              f"{int(g['observations'].values[i]):>5}{est}")
