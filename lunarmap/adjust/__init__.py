@@ -37,7 +37,8 @@ from .problem import BundleProblem, ImageModel, ImageObservations, PointPriors, 
 from .result import AdjustmentResult
 from .sensors import SensorImageModel
 from .solver import AdjustmentState, SolverOptions, solve
-from .variance import ObservationGroups, VarianceComponents, estimate_variance_components, observation_groups
+from .variance import (ObservationGroups, VarianceComponents, estimate_variance_components, observation_groups,
+                       variance_component_covariance)
 from .weights import ScaledTerm, Weights, reweighted_problem
 from .qc import QCOptions, QCReport, QCResult, quality_control
 
@@ -55,5 +56,6 @@ __all__ = [
     "ControlNetwork", "read_network", "write_network", "network_from_tiepoints", "merge_networks",
     "NavigationObservations",
     "ObservationGroups", "VarianceComponents", "estimate_variance_components", "observation_groups",
+    "variance_component_covariance",
     "ScaledTerm", "Weights", "reweighted_problem", "QCOptions", "QCReport", "QCResult", "quality_control",
 ]
