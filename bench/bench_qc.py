@@ -17,6 +17,7 @@ Parts (``--part``, several allowed):
 * ``mismatches`` -- the synthetic block mission (rendered images, tie points from the matcher,
   check points measured at 0.3 px): check-point errors of the clean adjustment vs quality-controlled
   adjustments with 20 % and 50 % of the tie-point observations displaced by 4-40 px;
+* ``clean`` -- the blunder blocks without their errors: what ``--steps`` removes there (type-I rate);
 * ``misses`` -- for the image errors a run of ``--steps`` leaves in the block (``--draw-list``): the
   leave-one-out fits of the error's point, to tell an undecidable error from a miss of the method.
 
@@ -137,6 +138,27 @@ def part_misses(draws: list[int], steps: tuple) -> None:
             emit("misses", draw=d, strategy="->".join(steps), observation=int(i), size="large" if g == 1 else "small",
                  point=int(o.pt_idx[i]), rays=[int(k) for k in rays], removed_instead=gone,
                  leave_one_out_rms=[round(r, 2) for r in rms], score=score(sim, qc))
+
+
+def part_clean(draws: int, steps: tuple) -> None:
+    """The blunder blocks without their errors: what ``steps`` removes or down-weights there (the type-I rate
+    of the tests at their limit)."""
+    from qchelp import dlr_problem
+
+    from lunarmap.adjust import SolverOptions
+    from lunarmap.adjust.qc import QCOptions, quality_control
+    from lunarmap.simulate import dlr_block
+
+    empty = 0
+    for d in range(draws):
+        sim = dlr_block(seed=d, example="blunders")
+        qc = quality_control(dlr_problem(sim), steps, image_group=sim.block.camera,
+                             options=QCOptions(solver=SolverOptions(ftol=1e-8)))
+        acted = [dict(kind=x.kind, index=int(x.index), action=x.action, value=round(float(x.value), 3))
+                 for x in qc.report.decisions if x.action in ("removed", "downweighted", "flagged")]
+        empty += not acted
+        emit("clean", draw=d, strategy="->".join(steps), acted=acted)
+    emit("clean-summary", strategy="->".join(steps), draws=draws, nothing_removed=empty)
 
 
 def part_variance(draws: int) -> None:
@@ -414,10 +436,10 @@ def part_mismatches(seed: int, fractions: list[float], variants=MISMATCH_VARIANT
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--part", nargs="+", default=["blunders", "variance", "offsets"],
-                    choices=["blunders", "variance", "offsets", "scale", "scale-one", "mismatches", "misses"])
+                    choices=["blunders", "variance", "offsets", "scale", "scale-one", "mismatches", "misses", "clean"])
     ap.add_argument("--draws", type=int, default=20)
     ap.add_argument("--draw-list", type=int, nargs="*", help="(misses) these draws instead of range(--draws)")
-    ap.add_argument("--steps", nargs="+", default=["baarda"], help="(misses) the QC steps run")
+    ap.add_argument("--steps", nargs="+", default=["baarda"], help="(misses, clean) the QC steps run")
     ap.add_argument("--sizes", nargs="+", default=["medium", "large1m", "xl4000"], choices=sorted(SIZES))
     ap.add_argument("--old", action="store_true", help="also time the column-solve precision (slow at 4,000 images)")
     ap.add_argument("--qc", action="store_true", help="(scale-one) also time a full QC run")
@@ -435,6 +457,8 @@ def main(argv=None):
             part_variance(args.draws)
         elif part == "offsets":
             part_offsets(args.draws)
+        elif part == "clean":
+            part_clean(args.draws, tuple(args.steps))
         elif part == "misses":
             part_misses(args.draw_list or list(range(args.draws)), tuple(args.steps))
         elif part == "scale":
