@@ -131,17 +131,17 @@ class QCReport:
             lines.append(f"{'group':<36} {'sigma after/before':>18} {'+-':>7} {'redundancy':>10} {'obs':>5}"
                          + (f" {'+- joint':>8}  trades with" if joint else ""))
             for i, name in enumerate(g["group"].values):
-                est = "" if bool(g["estimated"].values[i]) else "  (not estimated)"
+                tail = "" if bool(g["estimated"].values[i]) else "  (not estimated)"
                 if joint:
                     c = np.array(g["correlation"].values[i], float)
                     c[i] = 0.0
                     j = int(np.nanargmin(c)) if np.isfinite(c).any() else -1
                     trade = (f" {g['group'].values[j]} ({c[j]:+.2f})" if j >= 0 and c[j] < -SEPARABLE_CORRELATION
                              else "")
-                    est = f" {float(g['sigma_factor_sigma_joint'].values[i]):>8.4f} {trade}" + est
+                    tail = f" {float(g['sigma_factor_sigma_joint'].values[i]):>8.4f} {trade}" + tail
                 lines.append(f"{str(name):<36} {float(g['sigma_factor'].values[i]):>18.4f} "
                              f"{float(g['sigma_factor_sigma'].values[i]):>7.4f} {float(g['redundancy'].values[i]):>10.1f} "
-                             f"{int(g['observations'].values[i]):>5}{est}")
+                             f"{int(g['observations'].values[i]):>5}{tail}")
         for r in self.offsets:
             lines.append(f"offsets/drifts, {r.attrs['round']}:")
             for i in range(r.sizes.get("row", 0)):

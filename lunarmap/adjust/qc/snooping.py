@@ -167,6 +167,13 @@ def _term_info(ledger: Ledger, t: int, row: int) -> tuple[int, int, str]:
 REINSTATABLE_STEPS = ("baarda", "robust")
 
 
+def _removed_images(ledger: Ledger, steps: tuple) -> NDArray[np.int64]:
+    """Image observations removed by any of ``steps`` and still out (weight 0), sorted."""
+    idx = np.array(sorted({d.index for d in ledger.decisions if d.step in steps and d.kind == "image"
+                           and d.action == "removed"}), np.int64)
+    return idx[ledger.weights.image_weight[idx] == 0.0] if idx.size else idx
+
+
 def _reinstatable(ledger: Ledger, limit: float, done: set) -> NDArray[np.int64]:
     """Image observations removed by data snooping that the final adjustment predicts within the limit.
 
@@ -178,9 +185,7 @@ def _reinstatable(ledger: Ledger, limit: float, done: set) -> NDArray[np.int64]:
     """
     res = ledger.result
     o = ledger.base.obs
-    removed = np.array([d.index for d in ledger.decisions if d.step in REINSTATABLE_STEPS and d.kind == "image"
-                        and d.action == "removed" and d.index not in done], np.int64)
-    removed = removed[ledger.weights.image_weight[removed] == 0.0] if removed.size else removed
+    removed = np.setdiff1d(_removed_images(ledger, REINSTATABLE_STEPS), np.fromiter(done, np.int64, len(done)))
     if removed.size == 0:
         return removed
     x = ledger.base.model.project(res.cam_params, o.cam_idx[removed], res.points[o.pt_idx[removed]])
@@ -362,8 +367,9 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
     the block) is left out in turn: the image resected on the adjusted points, the point intersected from
     the adjusted images. A leave-out is decisive if it fits the others within ``DECISIVE`` limits and every
     other leave-out leaves an RMS ``DECISIVE`` times larger or, for a point, a chi-square larger by
-``limit**2`` (its leave-outs differ in one ray: the likelihood-ratio test). Where none is for an image (its points carry too
-    much of the error's pull) and the block is small (``trials``), the whole block is adjusted once per
+    ``limit**2`` (its leave-outs differ in one ray: the likelihood-ratio test). Where none is for an image
+    (its points carry too much of the error's pull) and the block is small (``trials``), the whole block is
+    adjusted once per
     leave-out and the lowest cost is decisive if the next is higher by ``limit**2 / 2`` (a likelihood-ratio
     test). The
     decisive observation is removed, the others reinstated, an image's down-weighted navigation rows given
@@ -378,14 +384,11 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
     # Sequent's and a robust adjustment's removals too: a gross error along the epipolar line can pair with a
     # good ray, and Sequent then removes the point's other good rays (and the point with them); a redescending
     # weight function cuts the good rays a large error pulls
-    by = {step: np.array(sorted({d.index for d in ledger.decisions if d.step == step and d.kind == "image"
-                                 and d.action == "removed"}), np.int64) for step in ("baarda", "sequent", "robust")}
     n_swaps = 0
     # an image's swap assumes one error of its own: it does not undo Sequent's removals, which judged the
     # rays of a point (an image with two errors would get one back)
-    for kind, of, removed in (("image", o.cam_idx, np.union1d(by["baarda"], by["robust"])),
-                              ("point", o.pt_idx, np.union1d(np.union1d(by["baarda"], by["sequent"]), by["robust"]))):
-        removed = removed[ledger.weights.image_weight[removed] == 0.0] if removed.size else removed
+    for kind, of, removed in (("image", o.cam_idx, _removed_images(ledger, ("baarda", "robust"))),
+                              ("point", o.pt_idx, _removed_images(ledger, ("baarda", "sequent", "robust")))):
         # a swap changes only its own unit's observations, so every unit's candidates can be gathered first
         units, cands, rems = [], [], []
         for unit in np.unique(of[removed]):
