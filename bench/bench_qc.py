@@ -64,11 +64,20 @@ def load() -> str:
 
 # --- Tables 2-3 --------------------------------------------------------------------------------------
 
-def part_blunders(draws: int) -> None:
-    from qchelp import dlr_problem, score
+def dlr_qc(sim, steps):
+    """Quality control of a DLR simulation with the settings of every blunder experiment here."""
+    from qchelp import dlr_problem
 
     from lunarmap.adjust import SolverOptions
     from lunarmap.adjust.qc import QCOptions, quality_control
+
+    return quality_control(dlr_problem(sim), steps, image_group=sim.block.camera,
+                           options=QCOptions(solver=SolverOptions(ftol=1e-8)))
+
+
+def part_blunders(draws: int) -> None:
+    from qchelp import score
+
     from lunarmap.simulate import dlr_block, inject_blunders
 
     strategies = {"sequent->baarda": ("sequent", "baarda"), "baarda": ("baarda",), "robust": ("robust",),
@@ -78,8 +87,7 @@ def part_blunders(draws: int) -> None:
         sim = inject_blunders(dlr_block(seed=d, example="blunders"), seed=1000 + d)
         for name, steps in strategies.items():
             t0 = time.perf_counter()
-            qc = quality_control(dlr_problem(sim), steps, image_group=sim.block.camera,
-                                 options=QCOptions(solver=SolverOptions(ftol=1e-8)))
+            qc = dlr_qc(sim, steps)
             s = score(sim, qc)
             s["seconds"] = round(time.perf_counter() - t0, 2)
             s["sigma0"] = round(qc.result.sigma0, 3)
@@ -108,52 +116,36 @@ def part_blunders(draws: int) -> None:
 def part_misses(draws: list[int], steps: tuple) -> None:
     """For every image error a run of ``steps`` leaves in the block: the leave-one-out fits of its point's rays
     (each ray left out in turn, the point intersected from the others through the adjusted images; RMS of the
-    others' whitened residuals). An error whose leave-out is not clearly the best one cannot be told from a
-    good ray by the data."""
-    from qchelp import dlr_problem, score
+    others' whitened residuals: the snooping's own check of stripped points). An error whose leave-out is not
+    clearly the best one cannot be told from a good ray by the data."""
+    from qchelp import score
 
-    from lunarmap.adjust import SolverOptions
-    from lunarmap.adjust.intersection import intersect_points
-    from lunarmap.adjust.qc import QCOptions, quality_control
+    from lunarmap.adjust.qc.snooping import _point_fits
     from lunarmap.simulate import dlr_block, inject_blunders
 
     for d in draws:
         sim = inject_blunders(dlr_block(seed=d, example="blunders"), seed=1000 + d)
-        pb = dlr_problem(sim)
-        qc = quality_control(pb, steps, image_group=sim.block.camera, options=QCOptions(solver=SolverOptions(ftol=1e-8)))
+        qc = dlr_qc(sim, steps)
         out = set(qc.removed_image_observations.tolist())
-        o, res = pb.obs, qc.result
+        o = qc.ledger.base.obs
         for i, g in zip(sim.blunders.image_obs, sim.blunders.image_group):
             if int(i) in out:
                 continue
             rays = np.flatnonzero(o.pt_idx == o.pt_idx[i])
-            rms = []
-            for k in rays:
-                keep = rays[rays != k]
-                X = intersect_points(pb.model, res.cam_params, o.cam_idx[keep], np.zeros(keep.size, np.int64),
-                                     o.xy[keep], o.sigma[keep], n_pt=1).xyz
-                x = pb.model.project(res.cam_params, o.cam_idx[keep], np.repeat(X, keep.size, axis=0))
-                rms.append(float(np.sqrt(np.mean(((x - o.xy[keep]) / o.sigma[keep]) ** 2))))
-            gone = [int(k) for k in rays if int(k) in out]
+            (rms, _), = _point_fits(qc.ledger, [int(o.pt_idx[i])], [rays])
             emit("misses", draw=d, strategy="->".join(steps), observation=int(i), size="large" if g == 1 else "small",
-                 point=int(o.pt_idx[i]), rays=[int(k) for k in rays], removed_instead=gone,
-                 leave_one_out_rms=[round(r, 2) for r in rms], score=score(sim, qc))
+                 point=int(o.pt_idx[i]), rays=rays.tolist(), removed_instead=[int(k) for k in rays if int(k) in out],
+                 leave_one_out_rms=np.round(rms, 2).tolist(), score=score(sim, qc))
 
 
 def part_clean(draws: int, steps: tuple) -> None:
     """The blunder blocks without their errors: what ``steps`` removes or down-weights there (the type-I rate
     of the tests at their limit)."""
-    from qchelp import dlr_problem
-
-    from lunarmap.adjust import SolverOptions
-    from lunarmap.adjust.qc import QCOptions, quality_control
     from lunarmap.simulate import dlr_block
 
     empty = 0
     for d in range(draws):
-        sim = dlr_block(seed=d, example="blunders")
-        qc = quality_control(dlr_problem(sim), steps, image_group=sim.block.camera,
-                             options=QCOptions(solver=SolverOptions(ftol=1e-8)))
+        qc = dlr_qc(dlr_block(seed=d, example="blunders"), steps)
         acted = [dict(kind=x.kind, index=int(x.index), action=x.action, value=round(float(x.value), 3))
                  for x in qc.report.decisions if x.action in ("removed", "downweighted", "flagged")]
         empty += not acted
