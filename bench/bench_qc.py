@@ -107,6 +107,8 @@ def part_blunders(draws: int) -> None:
              control=int(sum(bool(r["control"]) for r in rows)),
              false_images_min_med_max=dist("false_images"), false_navigation_min_med_max=dist("false_navigation"),
              false_control_min_med_max=dist("false_control"),
+             withdrawn_good_min_med_max=dist("withdrawn_good"),
+             draws_with_a_point_withdrawn=int(sum(r["withdrawn_good"] > 0 for r in rows)),
              no_false=int(sum(r["false_images"] + r["false_navigation"] + r["false_control"] == 0 for r in rows)),
              median_seconds=float(np.median([r["seconds"] for r in rows])), load=load())
 
@@ -132,7 +134,7 @@ def part_misses(draws: list[int], steps: tuple) -> None:
             if int(i) in out:
                 continue
             rays = np.flatnonzero(o.pt_idx == o.pt_idx[i])
-            (rms, _), = _point_fits(qc.ledger, [int(o.pt_idx[i])], [rays])
+            (rms, _, _), = _point_fits(qc.ledger, [int(o.pt_idx[i])], [rays])
             emit("misses", draw=d, strategy="->".join(steps), observation=int(i), size="large" if g == 1 else "small",
                  point=int(o.pt_idx[i]), rays=rays.tolist(), removed_instead=[int(k) for k in rays if int(k) in out],
                  leave_one_out_rms=np.round(rms, 2).tolist(), score=score(sim, qc))
@@ -147,7 +149,7 @@ def part_clean(draws: int, steps: tuple) -> None:
     for d in range(draws):
         qc = dlr_qc(dlr_block(seed=d, example="blunders"), steps)
         acted = [dict(kind=x.kind, index=int(x.index), action=x.action, value=round(float(x.value), 3))
-                 for x in qc.report.decisions if x.action in ("removed", "downweighted", "flagged")]
+                 for x in qc.report.decisions if x.action in ("removed", "downweighted", "flagged", "withdrawn")]
         empty += not acted
         emit("clean", draw=d, strategy="->".join(steps), acted=acted)
     emit("clean-summary", strategy="->".join(steps), draws=draws, nothing_removed=empty)

@@ -40,14 +40,18 @@ def score(sim, qc) -> dict:
     the images cannot tell from it (:data:`PARTNER`); the control error when its control point is
     down-weighted. ``false_images``: good image observations removed by a test; ``lost_with_points``:
     good ones that left with their point (a point left with one ray cannot be adjusted: the good ray of
-    a 2-ray point with a gross error goes too); ``false_navigation`` / ``false_control``: other
+    a 2-ray point with a gross error goes too); ``withdrawn_good``: good ones withdrawn with a point whose
+    error the data cannot attribute to one ray; ``false_navigation`` / ``false_control``: other
     down-weighted ones.
     """
     bl = sim.blunders
     out_obs = set(qc.removed_image_observations.tolist())
     found = np.array([i in out_obs for i in bl.image_obs])
     # removed by a test (and not given back) vs gone with a point left with fewer than 2 rays
-    tested = {d.index for d in qc.report.decisions if d.kind == "image" and d.action == "removed"} & out_obs
+    # withdrawn with their point (the data could not say which of its rays is wrong): none judged wrong
+    withdrawn = {d.index for d in qc.report.decisions if d.kind == "image" and d.action == "withdrawn"}
+    tested = {d.index for d in qc.report.decisions if d.kind == "image" and d.action == "removed"}
+    tested = (tested & out_obs) - withdrawn
     led = qc.ledger
     nav_rows = led.terms[0].row_table()
     down = led.weights.term_sigma[0] > 1.0
@@ -69,7 +73,8 @@ def score(sim, qc) -> dict:
             "attitude_exact": att[0] if att else None, "attitude": att[1] if att else None,
             "control": (bl.control[0] in ctl_down) if bl.control else None,
             "false_images": len(tested - set(bl.image_obs.tolist())),
-            "lost_with_points": len(out_obs - tested - set(bl.image_obs.tolist())),
+            "lost_with_points": len(out_obs - tested - withdrawn - set(bl.image_obs.tolist())),
+            "withdrawn_good": len(withdrawn - set(bl.image_obs.tolist())),
             "false_navigation": len(nav_down - pos_hits - att_hits),
             "false_control": len(ctl_down - ({bl.control[0]} if bl.control else set())),
             "found": int(found.sum()) + sum(bool(x) for x in (pos and pos[1], att and att[1],

@@ -50,8 +50,9 @@ def midpoint_intersection(centres: NDArray, directions: NDArray, pt_idx: NDArray
 
 
 def intersect_points(model, cam_params: NDArray, cam_idx, pt_idx, xy, sigma=1.0, n_pt: int | None = None,
-                     x0: NDArray | None = None, max_iterations: int = 10, tol: float = 1e-10) -> IntersectionResult:
-    """Forward-intersect every point from its image measurements.
+                     x0: NDArray | None = None, max_iterations: int = 10, tol: float = 1e-10,
+                     prior_xyz: NDArray | None = None, prior_sqrt_weight: NDArray | None = None) -> IntersectionResult:
+    """Forward-intersect every point from its image measurements (and its observed coordinates, if any).
 
     Parameters
     ----------
@@ -61,6 +62,11 @@ def intersect_points(model, cam_params: NDArray, cam_idx, pt_idx, xy, sigma=1.0,
     cam_params : (n_img, p) image parameters.
     cam_idx, pt_idx : (n,) ints; xy : (n, 2) pixels; sigma : scalar or (n, 2) pixels.
     x0 : (n_pt, 3), optional start values.
+    prior_xyz, prior_sqrt_weight : (n_pt, 3), (n_pt, 3, 3), optional
+        Observed coordinates of the points (control points; length unit of the cameras) and their
+        whitening matrices ``W`` (``W^T W`` the weight matrix, inverse length unit; zero for points
+        without): the observations ``W (X - prior_xyz) = 0`` join the rays, and count in ``s0``'s
+        redundancy (3 per point with a non-zero ``W``).
 
     Raises
     ------
@@ -80,6 +86,15 @@ def intersect_points(model, cam_params: NDArray, cam_idx, pt_idx, xy, sigma=1.0,
     sig = np.broadcast_to(np.asarray(sigma, float), xy.shape)
     X = model.initial_points(cam_params, cam_idx, pt_idx, xy, n_pt) if x0 is None else np.array(x0, float)
     agg = aggregation_matrix(pt_idx, n_pt)
+    W = None
+    if prior_sqrt_weight is not None:
+        W = np.asarray(prior_sqrt_weight, float)
+        P = np.einsum("nki,nkj->nij", W, W)
+        Xp = np.asarray(prior_xyz, float)
+        if W.shape != (n_pt, 3, 3) or Xp.shape != (n_pt, 3):
+            raise AdjustmentInputError(f"intersection: prior coordinates / weights need shapes ({n_pt}, 3) and "
+                                       f"({n_pt}, 3, 3), got {Xp.shape} and {W.shape}")
+        Xp = np.where(np.isfinite(Xp), Xp, 0.0)
     it = 0
     for it in range(1, max_iterations + 1):
         x, _, Jp = model.linearize(cam_params, cam_idx, X[pt_idx])
@@ -87,6 +102,9 @@ def intersect_points(model, cam_params: NDArray, cam_idx, pt_idx, xy, sigma=1.0,
         r = (x - xy) / sig
         N = (agg @ np.einsum("nki,nkj->nij", A, A).reshape(-1, 9)).reshape(-1, 3, 3)
         g = agg @ np.einsum("nki,nk->ni", A, r)
+        if W is not None:
+            N = N + P
+            g = g + np.einsum("nij,nj->ni", P, X - Xp)
         dX = -np.einsum("nij,nj->ni", inv_sym3(N), g)
         X = X + dX
         if np.max(np.abs(dX)) <= tol * max(1.0, np.max(np.abs(X))):
@@ -95,8 +113,13 @@ def intersect_points(model, cam_params: NDArray, cam_idx, pt_idx, xy, sigma=1.0,
     A = Jp / sig[:, :, None]
     r = (x - xy) / sig
     N = (agg @ np.einsum("nki,nkj->nij", A, A).reshape(-1, 9)).reshape(-1, 3, 3)
-    Ninv = inv_sym3(N)
     vpv = agg @ np.sum(r * r, axis=1)
-    s0 = np.sqrt(vpv / (2 * k - 3))
+    dof = 2 * k - 3
+    if W is not None:
+        N = N + P
+        vpv = vpv + np.sum(np.einsum("nij,nj->ni", W, X - Xp) ** 2, axis=1)
+        dof = dof + 3 * np.any(W != 0.0, axis=(1, 2))
+    Ninv = inv_sym3(N)
+    s0 = np.sqrt(vpv / dof)
     cov = Ninv * (s0 ** 2)[:, None, None]
     return IntersectionResult(X, cov, Ninv, s0, np.sqrt(np.diagonal(cov, axis1=1, axis2=2)), k, it)

@@ -254,7 +254,8 @@ def quality_control(problem: BundleProblem, steps: Sequence[str] = ("sequent", "
                                                  action="sigma scaled" if e else "kept", group=name))
         elif step == "offsets":
             off = offset_drift_step(ledger, options=opt.solver, **opt.offsets)
-        acted = [d for d in ledger.decisions[n_dec:] if d.action in ("removed", "downweighted", "flagged")]
+        acted = [d for d in ledger.decisions[n_dec:]
+                 if d.action in ("removed", "downweighted", "flagged", "withdrawn")]
         _log.info("quality control: %s done in %.1f s: %d observations removed / down-weighted / flagged, "
                   "%d image observations active", step, time.perf_counter() - t_step, len(acted),
                   int(ledger.active.sum()))

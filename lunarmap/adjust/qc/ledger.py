@@ -57,7 +57,8 @@ class Decision:
         Redundancy number of the observation (NaN if not computed).
     action : str
         ``"removed"``, ``"downweighted"``, ``"dropped"`` (point without enough rays),
-        ``"fixed"`` (image without observations), ``"flagged"``.
+        ``"fixed"`` (image without observations), ``"flagged"``, ``"reinstated"``, ``"withdrawn"`` (with its
+        point: :meth:`Ledger.withdraw_point`).
     group : str
         Observation group (e.g. ``"image 0"``, ``"navigation position orbit 1"``).
     """
@@ -109,6 +110,8 @@ class Ledger:
         self._track_order = np.argsort(o.pt_idx, kind="stable")
         self._track_start = np.searchsorted(o.pt_idx[self._track_order], np.arange(problem.n_points + 1))
         self._touched: set[int] = set()
+        #: points taken out with all their rays (:meth:`withdraw_point`); never given back
+        self.withdrawn_points: set[int] = set()
         self._adjusted = False
         self._linear_points: NDArray | None = None
         self.step = "adjust"      # the step running, for decisions taken inside adjust()
@@ -320,6 +323,10 @@ class Ledger:
         med = float(np.median(tr[free]))
         return np.flatnonzero(free & ~(tr <= DEGENERATE_NORMAL * med))
 
+    def rays_of(self, j: int) -> NDArray[np.int64]:
+        """Image observations of point ``j`` (active or not)."""
+        return self._track_order[self._track_start[j]:self._track_start[j + 1]]
+
     def obs_group(self, i: int) -> str:
         return str(self._obs_group[i])
 
@@ -367,6 +374,24 @@ class Ledger:
                 self.weights.fixed_images[k] = True
                 self.decisions.append(Decision(step, rnd, "camera", int(k), int(k), -1, -1, 0.0, np.nan, "fixed",
                                                "image parameters"))
+
+    def withdraw_point(self, j: int, step: str, rnd: int, value=np.nan, why: str = "") -> None:
+        """Take point ``j`` out with all its rays, for good: a gross error among them that the data cannot
+        attribute to one ray (each ray, removed earlier or not, gets a ``"withdrawn"`` decision, which
+        supersedes a removal: none of them is judged wrong on its own)."""
+        o = self.base.obs
+        track = self.rays_of(j)
+        for i in track:
+            self.weights.image_weight[i] = 0.0
+            self.decisions.append(Decision(step, rnd, "image", int(i), int(o.cam_idx[i]), int(j), -1, float(value),
+                                           np.nan, "withdrawn", self.obs_group(int(i))))
+        self.decisions.append(Decision(step, rnd, "point", int(j), -1, int(j), -1, float(value), np.nan, "withdrawn",
+                                       f"point ({why})" if why else "point"))
+        self.withdrawn_points.add(int(j))
+        if not self._control_pts[j]:        # a control point keeps its coordinates' observation
+            self.weights.dropped_points[j] = True
+        self._touched.add(int(j))
+        self._settle(step, rnd, np.array([j]), np.unique(o.cam_idx[track]))
 
     def reinstate_image(self, obs: NDArray[np.int64], step: str, rnd: int, value=np.nan) -> None:
         """Give removed image observations their weight back; their points return if they have 2 rays again."""

@@ -56,8 +56,8 @@ class QCReport:
 
     def to_dataset(self) -> xr.Dataset:
         """Everything as one xarray Dataset: dimensions ``decision`` (the decisions' fields), ``obs_group``
-        (``group_*`` variables; ``acted_on (obs_group, qc_step)`` counts observations removed, down-weighted
-        or flagged per group and step) and ``offset_row`` (``offset_*``, every round)."""
+        (``group_*`` variables; ``acted_on (obs_group, qc_step)`` counts observations removed, down-weighted,
+        flagged or withdrawn per group and step) and ``offset_row`` (``offset_*``, every round)."""
         text = {"step", "kind", "action", "group"}
         ds = xr.Dataset({f: ("decision", np.array([getattr(d, f) for d in self.decisions],
                                                   dtype=object if f in text else float if f in ("value", "redundancy")
@@ -72,7 +72,7 @@ class QCReport:
             names = list(self.groups["group"].values)
             tab = np.zeros((len(names), len(steps)), np.int64)
             for d in self.decisions:
-                if d.group in names and d.action in ("removed", "downweighted", "flagged"):
+                if d.group in names and d.action in ("removed", "downweighted", "flagged", "withdrawn"):
                     tab[names.index(d.group), steps.index(d.step)] += 1
             ds["acted_on"] = (("obs_group", "qc_step"), tab)
             ds = ds.assign_coords(qc_step=np.array(steps, dtype=object))
