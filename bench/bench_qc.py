@@ -320,7 +320,12 @@ def part_scale_one(size: str, old: bool, qc_run: bool) -> None:
                    qc_false=int(len(out - set(bad.tolist()))), qc_s=round(t_qc, 2), plain_dirty_solve_s=round(t_plain, 2),
                    qc_over_plain_solve=round(t_qc / t_plain, 2), qc_over_clean_solve=round(t_qc / t_solve, 2),
                    qc_baarda_rounds=qc.report.summary.get("baarda_rounds"), qc_sigma0=round(qc.result.sigma0, 4),
-                   plain_sigma0=round(plain.sigma0, 3))
+                   plain_sigma0=round(plain.sigma0, 3),
+                   # of the good ones out: withdrawn with points whose error no ray could be singled out for
+                   qc_withdrawn_good=int(len({d.index for d in qc.report.decisions if d.kind == "image"
+                                              and d.action == "withdrawn"} - set(bad.tolist()))),
+                   qc_points_withdrawn=int(sum(d.kind == "point" and d.action == "withdrawn"
+                                               for d in qc.report.decisions)))
     emit("scale", **rec)
 
 
