@@ -133,6 +133,24 @@ def test_variance_components_in_the_run_replace_the_tie_variance_factor(example,
     assert run(serial.config, scheduler="sync", report=False).computed == 0
 
 
+def test_separability_check_in_the_run_can_be_turned_off(example, serial):
+    """``baarda_separable = false``: no point is withdrawn (the example's run withdraws some: points whose
+    failing ray no test can single out), each removal stands alone, and only the adjustment reruns."""
+    assert any(k.endswith("withdrawn") for k in serial.summary["qc"]["actions"])
+    off = 'baarda_sigma0 = "robust"\nbaarda_separable = false'
+    cfg = _config(example, "serial", **{'baarda_sigma0 = "robust"': off})
+    res = run(cfg, scheduler="sync", report=False)
+    assert res.counts()["adjust"] == (1, 0) and res.counts()["match"][0] == 0
+    q = res.summary["qc"]
+    assert not any(k.endswith("withdrawn") for k in q["actions"])
+    with xr.open_dataset(res.outputs["adjustment"] / "qc.nc") as ds:
+        act = ds["action"].values.astype(str)
+        removed, reinstated = int(np.sum(act == "removed")), int(np.sum(act == "reinstated"))
+    assert q["image_observations_removed"] == removed - reinstated
+    assert q["image_observations_removed"] < serial.summary["qc"]["image_observations_removed"]
+    assert run(serial.config, scheduler="sync", report=False).computed == 0
+
+
 def test_robust_first_in_the_run_is_the_first_adjustment(example, serial):
     """``steps = ["robust", "baarda"]``: no least-squares adjustment before the robust one (the summary and
     the printed line say so); the tie points' mismatches go, the measured control/check points are left to the
@@ -288,6 +306,8 @@ def test_bad_configurations_are_named(example, tmp_path):
          "adjust.qc.robust_function must be one of"),
         (base.replace('robust_scale = "mad"', 'robust_scale = "iqr"'), "adjust.qc.robust_scale must be one of"),
         (base.replace("baarda_limit = 4.0", "baarda_limit = 4.0\nalpha = 0.001"), "unknown key adjust.qc.alpha"),
+        (base.replace("baarda_limit = 4.0", 'baarda_limit = 4.0\nbaarda_separable = "yes"'),
+         "adjust.qc.baarda_separable must be"),
         (base[:base.index("[adjust.navigation]")] + base[base.index("[adjust.qc]"):].replace(
             'steps = ["baarda"]', 'steps = ["offsets"]'), "there are no navigation observations"),
         # every navigation group of the example has one image: an offset of a group cannot be estimated

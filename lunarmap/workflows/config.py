@@ -55,6 +55,7 @@ Layout (every relative path is taken relative to the configuration file's folder
     baarda_per_round = "point"       # "one" (largest w-test per round) | "point" (largest per point per round)
     baarda_sigma0 = "robust"         # w-tests against sigma0 = 1 ("apriori"), the adjustment's ("aposteriori") or
                                      # the median standardised residual's ("robust": gross errors do not inflate it)
+    baarda_separable = true          # a point whose failing ray no test can single out is withdrawn whole
     downweight_factor = 5.0          # failing navigation / control observations: weight divided by this
 
     [report]
@@ -124,6 +125,7 @@ class QCConfig:
     baarda_per_round: str = "point"
     baarda_sigma0: str = "robust"
     downweight_factor: float = 5.0
+    baarda_separable: bool = True
 
 
 @dataclass(frozen=True)
@@ -175,7 +177,7 @@ _NAV = {"position_sigma": ((int, float), True), "attitude_sigma": ((int, float),
         "offset": (str, False), "drift": (str, False), "offset_sigma": (list, False), "drift_sigma": (list, False)}
 _QC = {"steps": (list, False), "sequent_limit_km": ((int, float), False), "robust_function": (str, False),
        "robust_scale": (str, False), "baarda_limit": ((int, float), False), "baarda_per_round": (str, False),
-       "baarda_sigma0": (str, False),
+       "baarda_sigma0": (str, False), "baarda_separable": (bool, False),
        "downweight_factor": ((int, float), False)}
 _IMAGE = {"name": (str, True), "label": (str, True), "pixels": (str, True), "group": ((str, int), False)}
 
@@ -246,7 +248,8 @@ def _qc_config(q: Mapping[str, Any], navigation: bool, largest_group: int, src: 
             raise ConfigError(f"{src}: adjust.qc.{key} must be one of {list(allowed)}, got {q[key]!r}")
     return QCConfig(steps, float(q.get("sequent_limit_km", d.sequent_limit_km)), fn,
                     q.get("robust_scale", d.robust_scale), float(q.get("baarda_limit", d.baarda_limit)), per_round,
-                    q.get("baarda_sigma0", d.baarda_sigma0), float(q.get("downweight_factor", d.downweight_factor)))
+                    q.get("baarda_sigma0", d.baarda_sigma0), float(q.get("downweight_factor", d.downweight_factor)),
+                    bool(q.get("baarda_separable", d.baarda_separable)))
 
 
 def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",
