@@ -301,8 +301,8 @@ def _fit_stats(zs: list) -> tuple[NDArray, NDArray, NDArray]:
 
 
 def _image_fits(ledger: Ledger, unit: int, cand: NDArray[np.int64]) -> tuple[NDArray, NDArray, NDArray]:
-    """RMS, largest whitened residual and chi-square of the other candidates with each candidate left out in turn, image
-    ``unit`` resected on the adjusted points."""
+    """RMS, largest whitened residual and chi-square of the other candidates with each candidate left out in
+    turn, image ``unit`` resected on the adjusted points."""
     res = ledger.result
     model = ledger.base.model
     o = ledger.base.obs
