@@ -473,7 +473,7 @@ def _quality_control(block: Any, names: Sequence[str], groups: Sequence[str], qc
         robust={"function": qc["robust_function"], "scale": qc["robust_scale"],
                 "observations": block.network.point_type[block.problem.obs.pt_idx] == "tie"},
         baarda={"limit": qc["baarda_limit"], "per_round": qc["baarda_per_round"], "factor": qc["downweight_factor"],
-                "sigma0": qc["baarda_sigma0"], "separable": qc.get("baarda_separable", True)},
+                "sigma0": qc["baarda_sigma0"], "separable": qc["baarda_separable"]},
         # groups the data cannot estimate (e.g. a navigation group without redundancy) keep their sigma
         variance={"on_weak": "keep", "rounds": 20},
         # the paper's two stages (candidates from the residuals, then only the significant ones): the forward

@@ -386,6 +386,21 @@ def _point_fits(ledger: Ledger, units: list[int], cands: list[NDArray[np.int64]]
     return [_fit_stats(zs[first[j]:first[j + 1]]) for j in range(len(units))]
 
 
+def _swap(ledger: Ledger, out: int, rem: NDArray[np.int64], rnd: int, value: float, why: str) -> bool:
+    """Make image observation ``out`` the one removed among ``rem`` (the removed candidates of one image or
+    point): remove it if still in, give the others back. False if nothing changes."""
+    back = np.setdiff1d(rem, [out])
+    live_out = ledger.weights.image_weight[out] > 0
+    if not back.size and not live_out:
+        return False
+    if live_out:
+        ledger.remove_image(out, "baarda", rnd, value=value)
+        ledger.decisions[-1].group += f" ({why})"
+    if back.size:
+        ledger.reinstate_image(back, "baarda", rnd)
+    return True
+
+
 def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dict, options=None, trials=None,
                     min_rays: int = 3, max_rays: int = 60) -> int:
     """Images and points stripped around a gross error of their own: swap it for the good observations removed
@@ -467,16 +482,8 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
                                                   for t, r in enumerate(_nav_rows(ledger, unit)))
                 if 2.0 * (cost[best] - ledger.result.cost) > limit ** 2 * max(n_back, 1):
                     continue
-            out = int(cand[best])
-            back = np.setdiff1d(rem, [out])
-            live_out = ledger.weights.image_weight[out] > 0
-            if not back.size and not live_out:
+            if not _swap(ledger, int(cand[best]), rem, rnd, np.nan, f"left out of its stripped {kind}"):
                 continue                        # nothing would change
-            if live_out:
-                ledger.remove_image(out, "baarda", rnd, value=np.nan)
-                ledger.decisions[-1].group += f" (left out of its stripped {kind})"
-            if back.size:
-                ledger.reinstate_image(back, "baarda", rnd)
             if kind == "image":
                 for t, r in enumerate(_nav_rows(ledger, unit)):
                     for row in r[ledger.weights.term_sigma[t][r] > 1.0]:
@@ -534,16 +541,9 @@ def _unattributed_points(ledger: Ledger, limit: float, judged: set, rnd: int, ma
         if not chi2[best] <= lim2:
             continue                    # no single ray explains the point's misfit
         if chi2[second] - chi2[best] >= lim2:
-            out = int(cand[best])
-            back = np.setdiff1d(rem, [out])
-            if ledger.weights.image_weight[out] > 0:
-                ledger.remove_image(out, "baarda", rnd, value=float(np.sqrt(chi2[second] - chi2[best])))
-                ledger.decisions[-1].group += " (the decisive leave-out of its point)"
-            elif not back.size:
-                continue                # the removal was the right one
-            if back.size:
-                ledger.reinstate_image(back, "baarda", rnd)
-            acted += 1
+            # the removal was the right one unless the swap changes something
+            acted += _swap(ledger, int(cand[best]), rem, rnd, float(np.sqrt(chi2[second] - chi2[best])),
+                           "the decisive leave-out of its point")
             continue
         fit = chi2 <= lim2
         if np.sum(fit) >= 2 and np.any(np.isin(cand[fit], rem)):
