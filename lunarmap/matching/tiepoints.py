@@ -36,6 +36,7 @@ from ..ncread import load_netcdf
 from .interest import InterestPoints, foerstner
 from .pairs import STATUS, MatchParams, PairMatches, match_points
 from .ransac import RansacParams, ransac_local_affine
+from .thinning import thin_points
 from .tracks import Observations, build_tracks
 
 __all__ = ["DetectParams", "TiePointParams", "detect_tile", "tile_windows", "match_pair", "assemble_tiepoints",
@@ -58,12 +59,24 @@ class DetectParams:
 
 @dataclass
 class TiePointParams:
-    """All tuning of the chain."""
+    """All tuning of the chain.
+
+    Attributes
+    ----------
+    detect, match, ransac
+        Detection, matching and RANSAC settings.
+    track_tol : float
+        Positions of one image closer than this (pixels) are one feature of a track.
+    max_points : int, optional
+        Most interest points of image 1 matched per pair, spatially uniform over the overlap
+        (:func:`~lunarmap.matching.thinning.thin_points`); ``None`` matches every point.
+    """
 
     detect: DetectParams = field(default_factory=DetectParams)
     match: MatchParams = field(default_factory=MatchParams)
     ransac: RansacParams = field(default_factory=RansacParams)
     track_tol: float = 0.5
+    max_points: int | None = None
 
 
 def tile_windows(shape: tuple[int, int], tile: int, halo: int) -> list[tuple[tuple[int, int, int, int],
@@ -98,9 +111,26 @@ def merge_points(parts: Sequence[InterestPoints]) -> InterestPoints:
 
 def match_pair(image1: NDArray, image2: NDArray, sensor1: Any, sensor2: Any, points: InterestPoints,
                height: Any, params: TiePointParams, label: str) -> PairMatches:
-    """Match one image pair and screen the matches with RANSAC (outliers get status ``outlier``)."""
-    m = match_points(image1, image2, sensor1, sensor2, points.line, points.sample, height=height,
-                     params=params.match, label=label)
+    """Match one image pair and screen the matches with RANSAC (outliers get status ``outlier``).
+
+    With ``params.max_points`` the points are first thinned to that many, uniformly over the overlap
+    (the others get status ``thinned``). ``image1``, ``image2``: arrays or windowed images
+    (:class:`~lunarmap.matching.windowed.WindowedImage`).
+    """
+    n = points.line.size
+    keep = None
+    if params.max_points is not None and n > params.max_points:
+        h = float(np.nanmedian(np.asarray(height)))
+        keep = thin_points(points.line, points.sample, points.strength, params.max_points, sensor1, sensor2,
+                           tuple(image1.shape), tuple(image2.shape), h, cell=float(params.detect.cell))
+    if keep is None:
+        m = match_points(image1, image2, sensor1, sensor2, points.line, points.sample, height=height,
+                         params=params.match, label=label)
+    else:
+        # per-point heights follow their points; a DTM or one height serves all
+        h_keep = height if isinstance(height, xr.DataArray) or np.ndim(height) == 0 else np.asarray(height)[keep]
+        m = _expand(match_points(image1, image2, sensor1, sensor2, points.line[keep], points.sample[keep],
+                                 height=h_keep, params=params.match, label=label), keep, n, points)
     ok = m.ok
     if np.count_nonzero(ok) >= 3:
         p = m.prediction
@@ -111,6 +141,24 @@ def match_pair(image1: NDArray, image2: NDArray, sensor1: Any, sensor2: Any, poi
     m.meta["n_points"] = int(m.line1.size)
     m.meta["n_ok"] = int(np.count_nonzero(m.ok))
     return m
+
+
+def _expand(m: PairMatches, keep: NDArray[np.intp], n: int, points: InterestPoints) -> PairMatches:
+    """Matches of the kept points as rows of all ``n`` points (the others ``thinned``)."""
+    from .predict import Prediction
+
+    def full(a: NDArray, fill: float = np.nan) -> NDArray:
+        out = np.full((n,) + a.shape[1:], fill, dtype=a.dtype)
+        out[keep] = a
+        return out
+
+    status = np.full(n, STATUS["thinned"], dtype=np.int8)
+    status[keep] = m.status
+    p = m.prediction
+    pred = Prediction(full(p.line), full(p.sample), full(p.affine), full(p.epipolar), full(p.height))
+    line1, sample1 = points.line.astype(float), points.sample.astype(float)
+    return PairMatches(line1, sample1, full(m.line2), full(m.sample2), full(m.sigma_line), full(m.sigma_sample),
+                       full(m.correlation), status, pred, dict(m.meta, thinned=int(n - keep.size)))
 
 
 def assemble_tiepoints(results: Sequence[tuple[int, int, PairMatches]], names: Sequence[str],
