@@ -39,7 +39,7 @@ from .ransac import RansacParams, ransac_local_affine
 from .thinning import thin_points
 from .tracks import Observations, build_tracks
 
-__all__ = ["DetectParams", "TiePointParams", "detect_tile", "tile_windows", "match_pair", "assemble_tiepoints",
+__all__ = ["DetectParams", "TiePointParams", "detect_tile", "tile_windows", "match_pair", "assemble_tiepoints", "TrackRows",
            "write_tiepoints", "read_tiepoints", "check_tiepoint_table", "TIEPOINT_VARIABLES"]
 
 
@@ -161,64 +161,94 @@ def _expand(m: PairMatches, keep: NDArray[np.intp], n: int, points: InterestPoin
                        full(m.correlation), status, pred, dict(m.meta, thinned=int(n - keep.size)))
 
 
+class TrackRows:
+    """Matched rows of image pairs, gathered pair by pair and joined into tracks at the end.
+
+    Only what the tie-point table needs is kept per pair (its matched rows, not the attempted points'
+    predictions), so a run's memory grows with its matches, not with its interest points.
+    """
+
+    def __init__(self) -> None:
+        self.parts: dict[str, list[NDArray]] = {k: [] for k in ("img", "node", "line", "sample", "sl", "ss", "corr",
+                                                                  "ea", "eb")}
+        self.n_rows = 0
+        self.next_node = 0
+        self.anchor_base: dict[int, int] = {}
+        self.stats: dict[tuple[int, int], str] = {}
+
+    @property
+    def n_pairs(self) -> int:
+        return len(self.stats)
+
+    def add(self, i: int, j: int, index: NDArray, line1: NDArray, sample1: NDArray, line2: NDArray, sample2: NDArray,
+            sigma_line: NDArray, sigma_sample: NDArray, correlation: NDArray, n_points: int) -> None:
+        """The matched rows of pair ``(i, j)``: ``index`` of the matched interest points of image ``i``."""
+        k = int(np.size(index))
+        self.stats[(i, j)] = f"{k}/{n_points}"
+        if k == 0:
+            return
+        if i not in self.anchor_base:  # anchors of image i: one node per interest point, shared by its pairs
+            self.anchor_base[i] = self.next_node
+            self.next_node += 10 ** 9
+        anchors = self.anchor_base[i] + np.asarray(index, dtype=np.int64)
+        matched = self.next_node + np.arange(k)
+        self.next_node += k
+        s_l = np.asarray(sigma_line, float) / np.sqrt(2.0)
+        s_s = np.asarray(sigma_sample, float) / np.sqrt(2.0)
+        p = self.parts
+        p["img"] += [np.full(k, i), np.full(k, j)]
+        p["node"] += [anchors, matched]
+        p["line"] += [np.asarray(line1, float), np.asarray(line2, float)]
+        p["sample"] += [np.asarray(sample1, float), np.asarray(sample2, float)]
+        p["sl"] += [s_l, s_l]
+        p["ss"] += [s_s, s_s]
+        p["corr"] += [np.asarray(correlation, float)] * 2
+        p["ea"].append(self.n_rows + np.arange(k))
+        p["eb"].append(self.n_rows + k + np.arange(k))
+        self.n_rows += 2 * k
+
+    def table(self, names: Sequence[str], track_tol: float = 0.5) -> xr.Dataset:
+        """The tie-point table (see the module docstring)."""
+        def cat(key: str, dtype: type) -> NDArray:
+            parts = self.parts[key]
+            return np.concatenate(parts).astype(dtype) if parts else np.empty(0, dtype=dtype)
+
+        obs = Observations(cat("img", np.int64), cat("node", np.int64), cat("line", float), cat("sample", float),
+                           cat("sl", float), cat("ss", float), cat("corr", float), cat("ea", np.int64),
+                           cat("eb", np.int64))
+        table, n_conflicts = build_tracks(obs, tol=track_tol)
+        pair_stats = {f"{names[i]}|{names[j]}": v for (i, j), v in self.stats.items()}
+        return xr.Dataset(
+            {
+                "point_id": ("observation", table["point_id"].to_numpy(np.int64),
+                             {"long_name": "tie-point (track) id"}),
+                "image_id": ("observation", table["image_id"].to_numpy(np.int32),
+                             {"long_name": "index into the image coordinate"}),
+                "line": ("observation", table["line"].to_numpy(float), {"units": "pixel"}),
+                "sample": ("observation", table["sample"].to_numpy(float), {"units": "pixel"}),
+                "sigma_line": ("observation", table["sigma_line"].to_numpy(float), {"units": "pixel"}),
+                "sigma_sample": ("observation", table["sigma_sample"].to_numpy(float), {"units": "pixel"}),
+                "correlation": ("observation", table["correlation"].to_numpy(float), {"units": "1"}),
+            },
+            coords={"image": ("image", np.asarray(list(names), dtype=str))},
+            attrs={"pixel_convention": "CSM: centre of the first pixel at (0.5, 0.5)",
+                   "sigma_convention": "LSM standard deviation of the match split equally: sigma / sqrt(2) per image",
+                   "n_conflicting_tracks_dropped": n_conflicts,
+                   "matches_per_pair": "; ".join(f"{k}: {v}" for k, v in pair_stats.items()),
+                   "source": "lunarmap.matching"},
+        )
+
+
 def assemble_tiepoints(results: Sequence[tuple[int, int, PairMatches]], names: Sequence[str],
                        track_tol: float = 0.5) -> xr.Dataset:
     """Join pair matches into tracks and return the tie-point table (see the module docstring)."""
-    img, node, line, samp, sl, ss, corr, ea, eb = ([] for _ in range(9))
-    n_rows = 0
-    next_node = 0
-    anchor_base = {}
+    rows = TrackRows()
     for i, j, m in results:
         ok = np.flatnonzero(m.ok)
-        k = ok.size
-        if k == 0:
-            continue
-        if i not in anchor_base:  # anchors of image i: one node per interest point, shared by its pairs
-            anchor_base[i] = next_node
-            next_node += 10 ** 9
-        anchors = anchor_base[i] + ok
-        matched = next_node + np.arange(k)
-        next_node += k
-        s_l = m.sigma_line[ok] / np.sqrt(2.0)
-        s_s = m.sigma_sample[ok] / np.sqrt(2.0)
-        img += [np.full(k, i), np.full(k, j)]
-        node += [anchors, matched]
-        line += [m.line1[ok], m.line2[ok]]
-        samp += [m.sample1[ok], m.sample2[ok]]
-        sl += [s_l, s_l]
-        ss += [s_s, s_s]
-        corr += [m.correlation[ok], m.correlation[ok]]
-        ea.append(n_rows + np.arange(k))
-        eb.append(n_rows + k + np.arange(k))
-        n_rows += 2 * k
-
-    def cat(parts: list, dtype: type) -> NDArray:
-        return np.concatenate(parts).astype(dtype) if parts else np.empty(0, dtype=dtype)
-
-    obs = Observations(cat(img, np.int64), cat(node, np.int64), cat(line, float), cat(samp, float),
-                       cat(sl, float), cat(ss, float), cat(corr, float), cat(ea, np.int64), cat(eb, np.int64))
-    table, n_conflicts = build_tracks(obs, tol=track_tol)
-    pair_stats = {f"{names[i]}|{names[j]}": f"{m.meta.get('n_ok', 0)}/{m.meta.get('n_points', 0)}"
-                  for i, j, m in results}
-    ds = xr.Dataset(
-        {
-            "point_id": ("observation", table["point_id"].to_numpy(np.int64), {"long_name": "tie-point (track) id"}),
-            "image_id": ("observation", table["image_id"].to_numpy(np.int32),
-                         {"long_name": "index into the image coordinate"}),
-            "line": ("observation", table["line"].to_numpy(float), {"units": "pixel"}),
-            "sample": ("observation", table["sample"].to_numpy(float), {"units": "pixel"}),
-            "sigma_line": ("observation", table["sigma_line"].to_numpy(float), {"units": "pixel"}),
-            "sigma_sample": ("observation", table["sigma_sample"].to_numpy(float), {"units": "pixel"}),
-            "correlation": ("observation", table["correlation"].to_numpy(float), {"units": "1"}),
-        },
-        coords={"image": ("image", np.asarray(list(names), dtype=str))},
-        attrs={"pixel_convention": "CSM: centre of the first pixel at (0.5, 0.5)",
-               "sigma_convention": "LSM standard deviation of the match split equally: sigma / sqrt(2) per image",
-               "n_conflicting_tracks_dropped": n_conflicts,
-               "matches_per_pair": "; ".join(f"{k}: {v}" for k, v in pair_stats.items()),
-               "source": "lunarmap.matching"},
-    )
-    return ds
+        rows.add(i, j, ok, m.line1[ok], m.sample1[ok], m.line2[ok], m.sample2[ok], m.sigma_line[ok],
+                 m.sigma_sample[ok], m.correlation[ok], n_points=0)
+        rows.stats[(i, j)] = f"{m.meta.get('n_ok', 0)}/{m.meta.get('n_points', 0)}"
+    return rows.table(names, track_tol)
 
 
 def write_tiepoints(ds: xr.Dataset, path: str | os.PathLike) -> Path:
