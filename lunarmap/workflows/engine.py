@@ -211,7 +211,7 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
                      [pix[a], pix[b], isd_key[a], isd_key[b], dtm_digest, rec[a]["detect"].key])
         jobs.append(MatchJob(k, (a, b), (str(spec[a].pixels), str(spec[b].pixels)),
                              (rec[a]["isd"], rec[b]["isd"]), (rec[a]["pyramid"], rec[b]["pyramid"]),
-                             rec[a]["detect"]))
+                             rec[a]["detect"], (pix[a], pix[b])))
         match_keys.append(k)
     # about one match task per image: the graph of 10,000 images stays at ~20,000 tasks
     per_task = max(1, -(-len(jobs) // max(1, len(names))))
