@@ -23,7 +23,8 @@ class RotationTable:
     Parameters
     ----------
     time_dependent_frames : list of int
-        NAIF frame ids from the first time-dependent frame down to J2000 (ISIS order).
+        NAIF frame ids from the first time-dependent frame down to J2000 (ISIS order); empty when the
+        ISD named none (usgscsm does not need them).
     times : ndarray (n,)
         Ephemeris times, s.
     quaternions : ndarray (n, 4)
@@ -70,16 +71,19 @@ class RotationTable:
 
     def to_dict(self, every: slice = slice(None), always_constant: bool = True) -> dict[str, Any]:
         t = self.times[every]
-        out: dict[str, Any] = {
-            "time_dependent_frames": list(self.time_dependent_frames),
+        out: dict[str, Any] = {}
+        if self.time_dependent_frames:   # an ISD that named none (usgscsm's test ISDs) gets none back
+            out["time_dependent_frames"] = list(self.time_dependent_frames)
+        out.update({
             "ck_table_start_time": float(t[0]),
             "ck_table_end_time": float(t[-1]),
             "ck_table_original_size": int(t.size),
             "ephemeris_times": t.tolist(),
             "quaternions": self.quaternions[every].tolist(),
             "angular_velocities": self.angular_velocities[every].tolist(),
-        }
-        if always_constant or self.constant_frames[0] != self.time_dependent_frames[0]:
+        })
+        frames_differ = self.constant_frames[:1] != self.time_dependent_frames[:1]
+        if always_constant or frames_differ or not np.array_equal(self.constant_rotation, np.eye(3)):
             out["constant_frames"] = list(self.constant_frames)
             out["constant_rotation"] = self.constant_rotation.flatten().tolist()
         out["reference_frame"] = J2000
