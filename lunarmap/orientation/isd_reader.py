@@ -68,7 +68,7 @@ from ..errors import IsdConventionWarning, IsdFormatError, warn
 from .distortion_schema import distortion_block_problem
 from .isd_kinds import PushFrameTiming, SarParameters
 from .rotation import align_quaternion_signs, normalize_quat, quat_to_matrix
-from .rotation_hermite import RotationHermite, quat_exp, quat_log, quat_multiply
+from .rotation_hermite import RotationHermite, quat_exp, quat_log, quat_multiply, rates_from_samples
 from .rotation_table import RotationTable
 
 
@@ -290,10 +290,11 @@ class _Rotations:
         if np.any(np.abs(norm - 1.0) > _QUAT_NORM_TOL):
             i = int(np.argmax(np.abs(norm - 1.0)))
             raise doc.error(p + "quaternions", f"must hold unit quaternions; row {i} has norm {norm[i]!r}")
-        if need_rates or "angular_velocities" in blk:
+        self.rates_given = need_rates or blk.get("angular_velocities") is not None   # null: no rates (ALE)
+        if self.rates_given:
             av = doc.array(blk, "angular_velocities", (n, 3), p)
         else:
-            av = _rates_from_samples(self.times, q)
+            av = rates_from_samples(self.times, q)
         own_frames = self.time_dependent_frames[:1]
         if "constant_rotation" in blk and (self.time_dependent_frames or not constant_needs_frames):
             c = doc.array(blk, "constant_rotation", (9,), p).reshape(3, 3)
@@ -316,25 +317,8 @@ def _identity_pointing(times: Array) -> "_Rotations":
     r.quaternions = np.tile([1.0, 0.0, 0.0, 0.0], (times.size, 1))
     r.angular_velocities = np.zeros((times.size, 3))
     r.constant_rotation, r.constant_frames = np.eye(3), []
+    r.rates_given = False
     return r
-
-
-def _rates_from_samples(times: Array, q: Array) -> Array:
-    """Angular velocities (``xf2rav`` convention) of sampled rotations that came without them.
-
-    Each interval's constant rate (its geodesic), averaged over the two intervals
-    meeting at a sample; zero for a single sample.
-    """
-    if times.size == 1:
-        return np.zeros((1, 3))
-    qn = q / np.linalg.norm(q, axis=1, keepdims=True)
-    rel = quat_multiply(qn[:-1] * np.array([1.0, -1.0, -1.0, -1.0]), qn[1:])
-    rel *= np.where(rel[:, :1] < 0.0, -1.0, 1.0)
-    rate = -quat_log(rel) / np.diff(times)[:, None]
-    out = np.empty((times.size, 3))
-    out[0], out[-1] = rate[0], rate[-1]
-    out[1:-1] = 0.5 * (rate[:-1] + rate[1:])
-    return out
 
 
 def _resample_pointing(times: Array, q: Array, av: Array, at: Array) -> tuple[Array, Array]:
@@ -521,6 +505,9 @@ def image_support_fields(d: Mapping[str, Any], source: str = "") -> dict[str, An
     if name_model not in SENSOR_MODELS:
         raise doc.error("name_model", f"is {name_model!r}; lunarmap reads {sorted(SENSOR_MODELS)}")
     model = SENSOR_MODELS[name_model]
+    if "jitter" in d:
+        # usgscsm's rolling-shutter jitter of framing cameras; ignoring it would silently misplace pixels
+        raise doc.error("jitter", "(rolling-shutter jitter) is not modelled by lunarmap")
     lines = doc.integer(d, "image_lines", minimum=1)
     samples = doc.integer(d, "image_samples", minimum=1)
     center = doc.number(d, "center_ephemeris_time")
@@ -581,7 +568,7 @@ def image_support_fields(d: Mapping[str, Any], source: str = "") -> dict[str, An
         starting_ephemeris_time=start, line_period=line_period, times=times, positions=positions,
         velocities=velocities,
         pointing=RotationTable(pointing.time_dependent_frames, times, q_p, w_p, pointing.constant_frames,
-                               pointing.constant_rotation),
+                               pointing.constant_rotation, pointing.rates_given),
         body_rotation=body_table,
         body_state_rotations=body_xf, sun_times=sun_t, sun_positions=sun_pos, sun_velocities=sun_vel,
         radii=radii, body_frame=_body_frame_name(doc, naif, own),

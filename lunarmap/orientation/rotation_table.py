@@ -35,6 +35,9 @@ class RotationTable:
         From the destination frame (sensor or body-fixed) to ``time_dependent_frames[0]``.
     constant_rotation : ndarray (3, 3)
         ``pxform(time_dependent_frames[0], constant_frames[0])``.
+    rates_given : bool
+        Whether the angular velocities came from SPICE or the ISD; ``False``: derived from the
+        samples (CKs without rates, e.g. Chandrayaan's, for which ALE writes none), and not written.
     """
 
     time_dependent_frames: list[int]
@@ -43,6 +46,7 @@ class RotationTable:
     angular_velocities: NDArray[np.float64]
     constant_frames: list[int]
     constant_rotation: NDArray[np.float64]
+    rates_given: bool = True
 
     def matrices(self) -> NDArray[np.float64]:
         """J2000 -> destination-frame rotation matrices, shape (n, 3, 3)."""
@@ -61,7 +65,7 @@ class RotationTable:
 
         q, w = RotationHermite(self.times, self.quaternions, self.angular_velocities)(np.asarray(times, float))
         return RotationTable(list(self.time_dependent_frames), np.asarray(times, float).copy(), q, w,
-                             list(self.constant_frames), self.constant_rotation.copy())
+                             list(self.constant_frames), self.constant_rotation.copy(), self.rates_given)
 
     def state_transforms(self) -> NDArray[np.float64]:
         """6x6 state transforms J2000 -> destination frame at the epochs, ``(n, 6, 6)``."""
@@ -80,8 +84,9 @@ class RotationTable:
             "ck_table_original_size": int(t.size),
             "ephemeris_times": t.tolist(),
             "quaternions": self.quaternions[every].tolist(),
-            "angular_velocities": self.angular_velocities[every].tolist(),
         })
+        # without rates the key is null, as ALE writes it: usgscsm needs the key and reads null as no rates
+        out["angular_velocities"] = self.angular_velocities[every].tolist() if self.rates_given else None
         frames_differ = self.constant_frames[:1] != self.time_dependent_frames[:1]
         if always_constant or frames_differ or not np.array_equal(self.constant_rotation, np.eye(3)):
             out["constant_frames"] = list(self.constant_frames)
