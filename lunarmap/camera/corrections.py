@@ -582,13 +582,11 @@ class PushFrameCorrections:
         return v, M, w, powers
 
     def _centre_distance(self, p: Array, X: Array, j: NDArray[np.intp]) -> Array:
-        v = self._sensor_vectors(p, X, j)[0]
-        f = self.sensor.interior.focal_length
-        with np.errstate(divide="ignore", invalid="ignore"):
-            front = v[:, 2] * f > 0.0
-            line = (self._A[0, 0] * f * v[:, 0] + self._A[0, 1] * f * v[:, 1]) / v[:, 2] + self._b[0]
+        """Distance of the exact (distorted) projection to the framelet's centre line, as the camera decides."""
         cam = self.sensor
-        return np.where(front, np.abs(line - cam._offset - 0.5 * cam.framelet_lines), np.inf)
+        v = self._sensor_vectors(p, X, j)[0]
+        line, _, ok = cam._project(v)
+        return np.where(ok, np.abs(line - cam._offset - 0.5 * cam.framelet_lines), np.inf)
 
     def framelets(self, params: ArrayLike, xyz: ArrayLike) -> NDArray[np.intp]:
         """Exposure index of the framelet each point is given to under the corrections; -1 if none."""
