@@ -18,6 +18,7 @@ from .distortion_csm import (  # registers usgscsm's transverse, radtan, dawnfc,
     TransverseDistortion,
     fit_transverse,
 )
+from .csm import USGSCSM_DISTORTIONS, csm_image_support
 from .factory import camera_from_isd, camera_from_isd_file, load_camera
 from .frame import FrameCamera, focal_to_image, image_to_focal
 from .geodesy import (
@@ -52,7 +53,7 @@ __all__ = [
     "LineScanCamera", "LineTimes",
     "PushFrameCamera", "FrameletTiming", "PushFrameCorrections",
     "SarSensor", "SarCorrections", "RangeConversion",
-    "camera_from_isd", "camera_from_isd_file", "load_camera",
+    "camera_from_isd", "camera_from_isd_file", "load_camera", "csm_image_support", "USGSCSM_DISTORTIONS",
     "SensorModel", "Corrections", "FrameCorrections", "LineScanCorrections", "AffineCorrections",
     "AffineCorrectedSensor",
 ]

@@ -582,11 +582,13 @@ class PushFrameCorrections:
         return v, M, w, powers
 
     def _centre_distance(self, p: Array, X: Array, j: NDArray[np.intp]) -> Array:
-        """Distance of the exact (distorted) projection to the framelet's centre line, as the camera decides."""
+        """Distance of the projection to the framelet's centre line; infinite outside the framelet."""
         cam = self.sensor
         v = self._sensor_vectors(p, X, j)[0]
         line, _, ok = cam._project(v)
-        return np.where(ok, np.abs(line - cam._offset - 0.5 * cam.framelet_lines), np.inf)
+        fl = line - cam._offset
+        inside = ok & (fl >= -1e-9) & (fl <= cam.framelet_lines + 1e-9)
+        return np.where(inside, np.abs(fl - 0.5 * cam.framelet_lines), np.inf)
 
     def framelets(self, params: ArrayLike, xyz: ArrayLike) -> NDArray[np.intp]:
         """Exposure index of the framelet each point is given to under the corrections; -1 if none."""

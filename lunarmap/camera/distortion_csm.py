@@ -35,7 +35,7 @@ from ..errors import InvalidInputError
 from .distortion import DISTORTION_MODELS, Distortion, _jacobian, _newton_inverse, _xy
 
 __all__ = ["TransverseDistortion", "RadTanDistortion", "DawnFcDistortion", "ShadowCamDistortion",
-           "transverse_basis", "fit_transverse"]
+           "transverse_basis", "fit_transverse", "fit_radtan"]
 
 Array = NDArray[np.float64]
 
@@ -337,3 +337,38 @@ def fit_transverse(distortion: Distortion, x: ArrayLike, y: ArrayLike) -> tuple[
     model = TransverseDistortion(cx / scale, cy / scale)
     px, py = model.distort(ux[ok], uy[ok])
     return model, np.column_stack([px - dx[ok], py - dy[ok]])
+
+
+def fit_radtan(distortion: Distortion, x: ArrayLike, y: ArrayLike,
+               focal_length: float) -> tuple[RadTanDistortion, tuple[float, float], Array]:
+    """The radial-tangential model closest (least squares) to a distortion model, about its optical axis.
+
+    The radtan model is centred on the focal-plane origin; models with a principal point off the origin
+    (Apollo metric) are fitted about the distorted position of the optical axis, ``distort(0, 0)``, which
+    the caller moves to the origin by shifting the focal plane (``shift``, mm, to subtract from distorted
+    coordinates). The model is linear in its 5 coefficients, so the fit is one linear least-squares solve
+    on coordinates normalised by the focal length.
+
+    Returns
+    -------
+    RadTanDistortion
+        ``R`` with ``R(undistort(d)) ~= d - shift``.
+    shift : (float, float)
+        Distorted position of the optical axis, mm.
+    residual : ndarray (n, 2)
+        ``R(u) - (d - shift)`` at the points, mm.
+    """
+    dx, dy = (np.ravel(v) for v in _xy(x, y))
+    sx, sy = (float(v) for v in distortion.distort(0.0, 0.0))
+    ux, uy = distortion.undistort(dx, dy)
+    ok = np.isfinite(ux) & np.isfinite(uy)
+    f = float(focal_length)
+    nx, ny = ux[ok] / f, uy[ok] / f
+    r2 = nx * nx + ny * ny
+    a = np.vstack([np.stack([nx * r2, nx * r2 ** 2, 2 * nx * ny, r2 + 2 * nx * nx, nx * r2 ** 3], 1),
+                   np.stack([ny * r2, ny * r2 ** 2, r2 + 2 * ny * ny, 2 * nx * ny, ny * r2 ** 3], 1)])
+    b = np.concatenate([(dx[ok] - sx) / f - nx, (dy[ok] - sy) / f - ny])
+    k1, k2, p1, p2, k3 = np.linalg.lstsq(a, b, rcond=None)[0]
+    model = RadTanDistortion([k1, k2, p1, p2, k3], f)
+    px, py = model.distort(ux[ok], uy[ok])
+    return model, (sx, sy), np.column_stack([px - (dx[ok] - sx), py - (dy[ok] - sy)])

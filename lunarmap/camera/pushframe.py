@@ -18,9 +18,9 @@ the framelet whose projection falls closest to the framelet's centre line (usgsc
 projection in that framelet gives the pixel. For all points at once: the signed distance of the
 undistorted projection to the centre line at a coarse subset of framelets (a few dozen) brackets
 the point, linear interpolation in the bracket gives a first framelet, its neighbours are compared
-until the closest one is found, and a last comparison of the exact, distorted projections in that
-framelet and its two neighbours decides (usgscsm stops at the undistorted choice, which near strong
-distortion can leave the pixel beyond its framelet's edge). Unlike usgscsm's ``groundToImage``,
+until the closest one is found (usgscsm's choice). Where the exact, distorted projection falls outside
+that framelet (strong distortion near a framelet edge), the neighbour that contains it is taken instead:
+usgscsm keeps its choice there and returns a pixel of another ground point. Unlike usgscsm's ``groundToImage``,
 flipped framelets are mirrored back (usgscsm leaves them mirrored, which its image-to-ground
 direction does not).
 
@@ -52,6 +52,7 @@ Array = NDArray[np.float64]
 
 _COARSE = 33        # framelets sampled to bracket a ground point
 _MAX_SHIFT = 8      # neighbour comparisons before a point is given up (never reached on smooth orbits)
+_EDGE = 1e-9        # lines: a projection this close to a framelet's edge is on it
 
 
 @dataclass(frozen=True)
@@ -181,9 +182,16 @@ class PushFrameCamera(_CameraModel):
     def image_line(self, j: ArrayLike, detector_line: ArrayLike) -> Array:
         """Image line of a detector-side framelet line seen in the framelet of exposure index ``j``."""
         fl = np.asarray(detector_line, dtype=float) - self._offset
+        h = float(self.framelet_lines)
         if self.timing.framelets_flipped:
-            fl = self.framelet_lines - fl
-        return self.exposure_index(j) * self.framelet_lines + fl
+            fl = h - fl
+        k = self.exposure_index(j)
+        # a projection on a framelet's edge, within rounding, is given a line of that framelet: the edge line
+        # k h belongs to framelet k, the next one's top edge to framelet k + 1 (image_to_ground's floor)
+        fl = np.where((fl < 0.0) & (fl >= -_EDGE), 0.0, fl)
+        last = k == self.n_framelets - 1
+        upper = (fl >= h) & (fl <= h + _EDGE) & ~last
+        return np.where(upper, np.nextafter((k + 1) * h, 0.0), k * h + fl)
 
     def image_time(self, line: ArrayLike) -> Array:
         """Mid-exposure time (s after ``eo.epoch``) of the framelets of image lines."""
@@ -263,23 +271,34 @@ class PushFrameCamera(_CameraModel):
         return self._project(v)
 
     def _exact_choice(self, g: Array, best: NDArray[np.intp]) -> NDArray[np.intp]:
-        """Among the chosen framelet and its neighbours, the one whose exact (distorted) projection is closest
-        to its centre line. The undistorted search can be off by a framelet where distortion is strong (the WAC
-        UV's 2.6 % radial term shifts its framelets' lines by ~0.3 image lines): usgscsm keeps that choice and
-        then returns a line beyond the framelet's edges, in its neighbour's image lines."""
+        """Keep usgscsm's (undistorted) choice unless the exact, distorted projection leaves that framelet;
+        then the neighbour whose exact projection is inside and closest to its centre line.
+
+        Where distortion is strong (the WAC UV's 2.6 % radial term shifts its framelets' lines by ~0.3 image
+        lines) the undistorted choice can be a framelet that sees the point just beyond its edge; usgscsm
+        then returns a line in the neighbour framelet's image lines, whose image-to-ground is another point.
+        """
         idx = np.flatnonzero(best >= 0)
         if idx.size == 0:
             return best
-        centre = self._offset + 0.5 * self.framelet_lines
-        cand = best[idx][:, None] + np.array([-1, 0, 1])[None, :]
-        cand = np.clip(cand, 0, self.n_framelets - 1)
+        h, tol = float(self.framelet_lines), 1e-9
+        line, _, ok = self._detector_lines(g[idx], best[idx])
+        fl = line - self._offset
+        out_of = ~ok | (fl < -tol) | (fl > h + tol)
+        fix = idx[out_of]
+        if fix.size == 0:
+            return best
+        cand = np.clip(best[fix][:, None] + np.array([-1, 0, 1])[None, :], 0, self.n_framelets - 1)
         dist = np.empty(cand.shape)
         for c in range(3):
-            line, _, ok = self._detector_lines(g[idx], cand[:, c])
-            dist[:, c] = np.where(ok, np.abs(line - centre), np.inf)
+            lc, _, okc = self._detector_lines(g[fix], cand[:, c])
+            flc = lc - self._offset
+            inside = okc & (flc >= -tol) & (flc <= h + tol)
+            dist[:, c] = np.where(inside, np.abs(flc - 0.5 * h), np.inf)
         pick = np.argmin(dist, axis=1)
+        found = np.isfinite(dist[np.arange(fix.size), pick])
         out = best.copy()
-        out[idx] = np.where(np.isfinite(dist[np.arange(idx.size), pick]), cand[np.arange(idx.size), pick], best[idx])
+        out[fix] = np.where(found, cand[np.arange(fix.size), pick], best[fix])
         return out
 
     def ground_to_image(self, xyz: ArrayLike, on_miss: OnMiss = "nan",

@@ -221,8 +221,22 @@ class ImageSupport:
         )
 
     # -- output ---------------------------------------------------------------
-    def to_ale_dict(self) -> dict[str, Any]:
-        """The ISD as ALE's ``ale.formatters.formatter.to_isd`` lays it out."""
+    def to_ale_dict(self, csm: bool = False) -> dict[str, Any]:
+        """The ISD as ALE's ``ale.formatters.formatter.to_isd`` lays it out.
+
+        Parameters
+        ----------
+        csm : bool
+            Replace a distortion model usgscsm does not apply (Apollo metric, Lunar Orbiter) by a fitted
+            ``transverse`` polynomial, its fit error in the ``lunarmap`` block
+            (:func:`lunarmap.camera.csm.csm_image_support`).
+        """
+        if csm:
+            # the fit needs the distortion models, which live in the camera package (imported on demand:
+            # the one call from orientation up into camera, for this output option only)
+            from ..camera.csm import csm_image_support
+
+            return csm_image_support(self).to_ale_dict()
         isd: dict[str, Any] = {
             "isis_camera_version": self.isis_camera_version,
             "image_lines": int(self.image_lines),
@@ -265,9 +279,9 @@ class ImageSupport:
         isd["lunarmap"] = {**self.provenance, "body_frame": self.body_frame}
         return _jsonable(isd)
 
-    def write_json(self, path: str | os.PathLike[str]) -> None:
-        """Write :meth:`to_ale_dict` as JSON, atomically (no partial file on failure)."""
-        write_json_atomic(self.to_ale_dict(), path)
+    def write_json(self, path: str | os.PathLike[str], csm: bool = False) -> None:
+        """Write :meth:`to_ale_dict` (``csm``: see there) as JSON, atomically (no partial file on failure)."""
+        write_json_atomic(self.to_ale_dict(csm=csm), path)
 
 
 def _position_block(times: NDArray[np.float64], pos: NDArray[np.float64], vel: NDArray[np.float64]) -> dict[str, Any]:
