@@ -281,7 +281,7 @@ class ImageSupport:
 
     def write_json(self, path: str | os.PathLike[str], csm: bool = False) -> None:
         """Write :meth:`to_ale_dict` (``csm``: see there) as JSON, atomically (no partial file on failure)."""
-        write_json_atomic(self.to_ale_dict(csm=csm), path)
+        write_json_atomic(self.to_ale_dict(csm=True) if csm else self.to_ale_dict(), path)
 
 
 def _position_block(times: NDArray[np.float64], pos: NDArray[np.float64], vel: NDArray[np.float64]) -> dict[str, Any]:

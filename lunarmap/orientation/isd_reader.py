@@ -1,4 +1,17 @@
-"""Reading ISD JSON documents (USGS ALE's layout, as written by ALE or lunarmap) without SPICE.
+"""Reading ISD JSON documents (USGS ALE's layout, as written by ALE, usgscsm's tests or lunarmap) without SPICE.
+
+Every ISD usgscsm accepts is read, with usgscsm's conventions (its ``constructStateFromIsd`` through
+ALE's C++ ``Util.cpp``): frame, line-scan, push-frame (``exposure_duration``, ``interframe_delay``,
+``framelet_height``, ``framelets_flipped``, ``framelet_order_reversed``, optional ``num_lines_overlap``)
+and SAR ISDs (``wavelength``, ``line_exposure_duration``, ``scaled_pixel_width``,
+``range_conversion_times`` / ``_coefficients``, ``look_direction``, ``ending_ephemeris_time``; no
+focal plane and no pointing needed); velocities, pointing angular velocities (absent or null) and
+``time_dependent_frames`` are optional; the pointing's ``constant_rotation`` counts only when the block
+names its ``time_dependent_frames`` (usgscsm ignores it otherwise); positions and radii are km whatever
+a ``unit`` key says (a radii unit other than km gets an
+:class:`~lunarmap.errors.IsdConventionWarning`); files may be gzipped (``.json.gz``). Rolling-shutter
+``jitter`` is refused by name (not modelled). Distortion blocks are checked against the schemas of
+:mod:`lunarmap.orientation.distortion_schema`.
 
 The document holds, in J2000 and km (see the shared kernel README, section 5):
 
