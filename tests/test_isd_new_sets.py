@@ -18,7 +18,7 @@ import spiceypy
 
 from lunarmap.labels import load_label
 from lunarmap.orientation.drivers import image_support
-from lunarmap.spice import KernelSet, kernels
+from lunarmap.spice import KernelSet
 
 from conftest import shared_set
 

@@ -9,7 +9,6 @@ and central differences of the models' own rigorous ground-to-image for the anal
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -297,3 +296,14 @@ def test_bad_push_frame_and_sar_isds_are_named(wac, minirf, tmp_path):
     with pytest.raises(IsdFormatError, match="has 19 sets for 20 range_conversion_times"):
         ImageSupport.read_json(path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["framelets.json", "sar.json"]   # nothing else written
+
+
+def test_pickled_cameras_project_the_same(wac, minirf):
+    import pickle
+
+    for _, _, cam in (wac, minirf):
+        L, S = _grid(cam, 5)
+        g = cam.image_to_ground(L, S, 100.0)
+        copy = pickle.loads(pickle.dumps(cam))
+        np.testing.assert_array_equal(copy.image_to_ground(L, S, 100.0), g)
+        np.testing.assert_array_equal(np.array(copy.ground_to_image(g)), np.array(cam.ground_to_image(g)))

@@ -389,14 +389,7 @@ class LineScanCorrections:
     """
 
     def __init__(self, camera: Any, degree: int = 1) -> None:
-        if degree not in (0, 1, 2):
-            raise InvalidInputError(f"line-scan correction degree must be 0, 1 or 2, got {degree!r}")
-        camera.distortion.undistort_jacobian(0.0, 0.0)
-        self.sensor = camera
-        self.degree = int(degree)
-        self.n_params = 6 * (self.degree + 1)
-        self.names = _poly_names(self.degree)
-        self.units = tuple(u for _ in range(self.degree + 1) for u in _EO_UNITS)
+        _init_polynomial(self, camera, degree, "line-scan")
         t0, t1 = camera.image_time(np.array([0.0, float(camera.interior.n_lines)]))
         self.t_mid = 0.5 * float(t0 + t1)
         self.t_half = 0.5 * abs(float(t1 - t0))
@@ -477,10 +470,7 @@ class LineScanCorrections:
         t = self._solve_time(p, X)
         pix, dv, v, M, w, powers = self._geometry(p, X, t, True)
         d_x, d_c, d_w = _eo_partials(dv, v, M, w)
-        d_p = np.empty((n, 2, self.n_params))
-        for k in range(self.degree + 1):
-            d_p[:, :, 6 * k:6 * k + 3] = d_w * powers[:, k, None, None]
-            d_p[:, :, 6 * k + 3:6 * k + 6] = d_c * powers[:, k, None, None]
+        d_p = _polynomial_partials(d_w, d_c, powers)
         # implicit time: r(t, p, X) = 0
         plus = self._geometry(p, X, t + _DT, False)[0]
         minus = self._geometry(p, X, t - _DT, False)[0]
@@ -529,6 +519,28 @@ def _poly_names(degree: int, quantities: tuple[str, ...] = ("w", "c")) -> tuple[
     return tuple(f"{q}{ax}_{k}" for k in range(degree + 1) for q in quantities for ax in "xyz")
 
 
+def _init_polynomial(corr: Any, camera: Any, degree: int, kind: str) -> None:
+    """What polynomial EO corrections (line scan, push frame) set up: degree, names, units, the sensor."""
+    if degree not in (0, 1, 2):
+        raise InvalidInputError(f"{kind} correction degree must be 0, 1 or 2, got {degree!r}")
+    camera.distortion.undistort_jacobian(0.0, 0.0)   # a model without partials fails here, by name
+    corr.sensor = camera
+    corr.degree = int(degree)
+    corr.n_params = 6 * (corr.degree + 1)
+    corr.names = _poly_names(corr.degree)
+    corr.units = tuple(u for _ in range(corr.degree + 1) for u in _EO_UNITS)
+
+
+def _polynomial_partials(d_w: Array, d_c: Array, powers: Array) -> Array:
+    """Partials ``(n, 2, 6 (degree + 1))`` of ``[w_k, c_k]`` from those of ``w``, ``c`` and ``tau^k``."""
+    n, degree1 = powers.shape
+    d_p = np.empty((n, 2, 6 * degree1))
+    for k in range(degree1):
+        d_p[:, :, 6 * k:6 * k + 3] = d_w * powers[:, k, None, None]
+        d_p[:, :, 6 * k + 3:6 * k + 6] = d_c * powers[:, k, None, None]
+    return d_p
+
+
 # -- push-frame cameras -------------------------------------------------------------------------
 
 class PushFrameCorrections:
@@ -550,14 +562,7 @@ class PushFrameCorrections:
     """
 
     def __init__(self, camera: Any, degree: int = 1) -> None:
-        if degree not in (0, 1, 2):
-            raise InvalidInputError(f"push-frame correction degree must be 0, 1 or 2, got {degree!r}")
-        camera.distortion.undistort_jacobian(0.0, 0.0)
-        self.sensor = camera
-        self.degree = int(degree)
-        self.n_params = 6 * (self.degree + 1)
-        self.names = _poly_names(self.degree)
-        self.units = tuple(u for _ in range(self.degree + 1) for u in _EO_UNITS)
+        _init_polynomial(self, camera, degree, "push-frame")
         t = camera.framelet_times
         self.t_mid = 0.5 * float(t[0] + t[-1])
         # one framelet spans no time: normalise by the interframe delay instead
@@ -631,10 +636,7 @@ class PushFrameCorrections:
         pix, dv, v, M, w, powers, lost = self._geometry(p, X, True)
         dv[:, 0, :] *= self._sign                  # image line = +-(detector-side framelet line) + const
         d_x, d_c, d_w = _eo_partials(dv, v, M, w)
-        d_p = np.empty((X.shape[0], 2, self.n_params))
-        for k in range(self.degree + 1):
-            d_p[:, :, 6 * k:6 * k + 3] = d_w * powers[:, k, None, None]
-            d_p[:, :, 6 * k + 3:6 * k + 6] = d_c * powers[:, k, None, None]
+        d_p = _polynomial_partials(d_w, d_c, powers)
         d_p[lost] = np.nan
         d_x[lost] = np.nan
         return pix, d_p, d_x

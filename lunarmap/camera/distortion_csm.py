@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InvalidInputError
-from .distortion import DISTORTION_MODELS, Distortion, _jacobian, _newton_inverse, _xy
+from .distortion import DISTORTION_MODELS, Distortion, _jacobian, _xy
 
 __all__ = ["TransverseDistortion", "RadTanDistortion", "DawnFcDistortion", "ShadowCamDistortion",
            "transverse_basis", "fit_transverse", "fit_radtan"]

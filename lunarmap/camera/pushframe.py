@@ -41,7 +41,7 @@ from ..errors import InvalidInputError
 from ..orientation.exterior import ExteriorOrientation
 from ..orientation.isd_kinds import PushFrameTiming
 from .corrections import PushFrameCorrections, _pixel_affine
-from .frame import _CameraModel, _check_ground_on_miss, _finite_pixels, _finite_xyz, image_to_focal
+from .frame import _CameraModel, _check_ground_on_miss, _finite_pixels, _finite_xyz
 from .interior import InteriorOrientation
 from .intersect import OnMiss
 from .shape import Shape
