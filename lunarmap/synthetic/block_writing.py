@@ -396,10 +396,12 @@ class BlockMission:
 
 
 def _params(orbits: int, site_latitude_deg: float, spec: NavigationErrorSpec, sites: int = 1,
-            site_spacing_deg: float = SITE_SPACING_DEG) -> dict[str, Any]:
+            site_spacing_deg: float = SITE_SPACING_DEG, site_half_width_s: float | None = None) -> dict[str, Any]:
     out = {"orbits": int(orbits), "site_latitude_deg": float(site_latitude_deg), "navigation": spec.to_dict()}
     if sites > 1:  # a one-site manifest stays as it was before sites existed
         out.update({"sites": int(sites), "site_spacing_deg": float(site_spacing_deg)})
+        if site_half_width_s is not None:
+            out["site_half_width_s"] = float(site_half_width_s)
     return out
 
 
@@ -419,7 +421,8 @@ def _spec(navigation: NavigationErrorSpec | Mapping[str, Any] | None, sites: Any
 def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits: int = 3,
                         site_latitude_deg: float = 57.0,
                         navigation: NavigationErrorSpec | Mapping[str, Any] | None = None, sites: int = 1,
-                        site_spacing_deg: float = SITE_SPACING_DEG) -> BlockMission:
+                        site_spacing_deg: float = SITE_SPACING_DEG,
+                        site_half_width_s: float | None = None) -> BlockMission:
     """Write the imaging block: kernels (TRUTH and NAVIGATION sets), labels and manifest.
 
     Parameters
@@ -441,14 +444,17 @@ def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits
         several sites :data:`~lunarmap.synthetic.block.MULTI_SITE_NAVIGATION`,
         whose drifts are ten times smaller).
     sites : int
-        Sites along the ground track (1 to 8), each seen on every orbit by
+        Sites along the ground track (1 to 48), each seen on every orbit by
         the same four images: ``4 * orbits * sites`` images, named
         ``s<site>_orbit<k>_<kind>`` when ``sites > 1`` (``orbit<k>_<kind>``
         with one site, whose files are exactly those written before sites
         existed).
     site_spacing_deg : float
         Latitude of site ``k + 1`` minus that of site ``k``, degrees (default
-        -8: southward, about 150 s of flight apart; ``6 <= |spacing| <= 20``).
+        -8: southward, about 150 s of flight apart; ``1 <= |spacing| <= 20``).
+    site_half_width_s : float, optional
+        Pass half-width of a block of several sites, seconds (see
+        :func:`~lunarmap.synthetic.block.build_block_model`).
 
     Returns
     -------
@@ -463,7 +469,7 @@ def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits
     """
     spec = _spec(navigation, sites)
     model = build_block_model(seed, orbits=orbits, site_latitude_deg=site_latitude_deg, navigation=spec, sites=sites,
-                              site_spacing_deg=site_spacing_deg)
+                              site_spacing_deg=site_spacing_deg, site_half_width_s=site_half_width_s)
     dest = Path(folder).expanduser()
     if dest.exists() and not dest.is_dir():
         raise BlockMissionError(f"cannot write the block mission into {dest}: it exists and is not a folder")
@@ -474,7 +480,7 @@ def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits
         _write_kernels(model, staging)
         images = _image_records(model, staging)
         manifest = _manifest(model, images, _params(orbits, site_latitude_deg, spec, model.n_sites,
-                                                    site_spacing_deg))
+                                                    site_spacing_deg, site_half_width_s))
         atomic_write(staging / BLOCK_MANIFEST_NAME, lambda tmp: tmp.write_text(
             json.dumps(manifest, indent=1) + "\n", encoding="ascii"))
         (staging / TRUTH_METAKERNEL).write_text(_metakernel_text("truth"), encoding="ascii")
@@ -517,7 +523,8 @@ def open_block_mission(folder: str | os.PathLike[str] | BlockMission) -> BlockMi
         model = build_block_model(int(man["seed"]), orbits=int(p["orbits"]),
                                   site_latitude_deg=float(p["site_latitude_deg"]),
                                   navigation=_spec(p["navigation"]), sites=int(p.get("sites", 1)),
-                                  site_spacing_deg=float(p.get("site_spacing_deg", SITE_SPACING_DEG)))
+                                  site_spacing_deg=float(p.get("site_spacing_deg", SITE_SPACING_DEG)),
+                                  site_half_width_s=p.get("site_half_width_s"))
     except (ValueError, KeyError, TypeError) as exc:
         raise BlockMissionError(f"{path} is not a valid block-mission manifest ({exc!r})") from None
     # the kernels were written from this model: a different lunarmap version must not reinterpret them

@@ -99,7 +99,8 @@ _NO_DTM = """# no [dtm]: the sites' DTMs (mission/dtm_s<k>.nc) are hundreds of k
 
 def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = False, n_control: int = 6,
                   n_check: int | None = None, control_sigma: float = 0.5, sigma_px: float = 0.3,
-                  names: list[str] | None = None, output: str = "run", sites: int = 1) -> Path:
+                  names: list[str] | None = None, output: str = "run", sites: int = 1,
+                  site_spacing_deg: float | None = None, site_half_width_s: float | None = None) -> Path:
     """Write the example's data and configuration; returns the path of ``run.toml``.
 
     Parameters
@@ -122,6 +123,9 @@ def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = F
         Run folder, relative to ``folder``.
     sites : int
         Sites of the block (:func:`lunarmap.synthetic.write_block_mission`): ``12 * sites`` images.
+    site_spacing_deg, site_half_width_s : float, optional
+        Latitude step between sites and pass half-width (defaults of
+        :func:`~lunarmap.synthetic.write_block_mission`; e.g. -2.5 and 12 for 40 sites).
     """
     from ..adjust import merge_networks, write_network
     from ..simulate import block_cameras, block_check_points, render_block
@@ -129,7 +133,8 @@ def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = F
 
     root = Path(folder)
     root.mkdir(parents=True, exist_ok=True)
-    bm = write_block_mission(root / "mission", seed=seed, sites=sites)
+    extra = {} if site_spacing_deg is None else {"site_spacing_deg": float(site_spacing_deg)}
+    bm = write_block_mission(root / "mission", seed=seed, sites=sites, site_half_width_s=site_half_width_s, **extra)
     use = list(bm.image_names) if names is None else list(names)
     render_block(bm, names=use, supersample=2)
     truth = block_cameras(bm, "truth", use)
