@@ -586,34 +586,17 @@ class PushFrameCorrections:
         v = np.einsum("nij,nj->ni", M, X - cam._positions[j] - powers @ P[:, 1, :])
         return v, M, w, powers
 
-    def _centre_distance(self, p: Array, X: Array, j: NDArray[np.intp]) -> Array:
-        """Distance of the projection to the framelet's centre line; infinite outside the framelet."""
-        cam = self.sensor
-        v = self._sensor_vectors(p, X, j)[0]
-        line, _, ok = cam._project(v)
-        fl = line - cam._offset
-        inside = ok & (fl >= -1e-9) & (fl <= cam.framelet_lines + 1e-9)
-        return np.where(inside, np.abs(fl - 0.5 * cam.framelet_lines), np.inf)
-
     def framelets(self, params: ArrayLike, xyz: ArrayLike) -> NDArray[np.intp]:
-        """Exposure index of the framelet each point is given to under the corrections; -1 if none."""
+        """Exposure index of the framelet each point is given to under the corrections; -1 if none.
+
+        The camera's rule (:meth:`PushFrameCamera.closest_framelets`) applied to the corrected geometry,
+        so that the projection equals the corrected camera's (:meth:`apply`) ``ground_to_image``.
+        """
         p = _params(params, self.n_params, "PushFrameCorrections")
         X = _xyz(xyz)
-        cam = self.sensor
-        j = cam.closest_framelets(X)
-        act = np.flatnonzero(j >= 0)
-        last = cam.n_framelets - 1
-        for _ in range(4):   # the corrections move a point by a small fraction of a framelet
-            if act.size == 0 or not np.any(p):
-                break
-            jb, Xa = j[act], X[act]
-            d0 = self._centre_distance(p, Xa, jb)
-            dl = self._centre_distance(p, Xa, np.maximum(jb - 1, 0))
-            dh = self._centre_distance(p, Xa, np.minimum(jb + 1, last))
-            go_lo, go_hi = (dl < d0) & (dl <= dh), (dh < d0) & (dh < dl)
-            j[act] = np.where(go_lo, np.maximum(jb - 1, 0), np.where(go_hi, np.minimum(jb + 1, last), jb))
-            act = act[go_lo | go_hi]
-        return j
+        if not np.any(p):
+            return self.sensor.closest_framelets(X)
+        return self.sensor.closest_framelets(X, lambda g, j: self._sensor_vectors(p, g, j)[0])
 
     def _geometry(self, p: Array, X: Array, jacobian: bool):
         cam = self.sensor

@@ -32,7 +32,7 @@ a gap between framelets that do not overlap.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -49,6 +49,8 @@ from .shape import Shape
 __all__ = ["FrameletTiming", "PushFrameCamera"]
 
 Array = NDArray[np.float64]
+#: ``vectors(points (n, 3), exposure indices (n,)) -> sensor-frame vectors (n, 3)``
+VectorFn = Callable[[NDArray[np.float64], NDArray[np.intp]], NDArray[np.float64]]
 
 _COARSE = 33        # framelets sampled to bracket a ground point
 _MAX_SHIFT = 8      # neighbour comparisons before a point is given up (never reached on smooth orbits)
@@ -213,9 +215,13 @@ class PushFrameCamera(_CameraModel):
         return self._positions[j].copy(), look
 
     # -- ground to image ---------------------------------------------------
-    def _centre_distance(self, g: Array, j: NDArray[np.intp]) -> Array:
+    def _sensor_vectors(self, g: Array, j: NDArray[np.intp]) -> Array:
+        """Sensor-frame vectors from the framelets ``j`` exposure positions to points ``g`` (row by row)."""
+        return np.einsum("nji,nj->ni", self._rotations[j], g - self._positions[j])
+
+    def _centre_distance(self, g: Array, j: NDArray[np.intp], vectors: VectorFn | None = None) -> Array:
         """Undistorted detector-side framelet line minus the framelet's centre line (usgscsm's choice)."""
-        v = np.einsum("nji,nj->ni", self._rotations[j], g - self._positions[j])
+        v = (vectors or self._sensor_vectors)(g, j)
         f = self.interior.focal_length
         with np.errstate(divide="ignore", invalid="ignore"):
             front = v[:, 2] * f > 0.0
@@ -224,12 +230,19 @@ class PushFrameCamera(_CameraModel):
         line = self._A[0, 0] * ux + self._A[0, 1] * uy + self._b[0]
         return line - self._offset - 0.5 * self.framelet_lines
 
-    def closest_framelets(self, g: Array) -> NDArray[np.intp]:
-        """Exposure index of the framelet whose centre line is closest to each point ``(n, 3)``; -1 if none."""
+    def closest_framelets(self, g: Array, vectors: VectorFn | None = None) -> NDArray[np.intp]:
+        """Exposure index of the framelet whose centre line is closest to each point ``(n, 3)``; -1 if none.
+
+        ``vectors(g, j)``, optional, gives the sensor-frame vectors of points ``g`` seen from framelets ``j``
+        (row by row) in place of the camera's own: the corrections choose framelets by the same rule.
+        """
+        def cd(pts: Array, jj: NDArray[np.intp]) -> Array:
+            return self._centre_distance(pts, jj, vectors)
+
         n_f = self.n_framelets
         coarse = np.unique(np.round(np.linspace(0, n_f - 1, min(n_f, _COARSE))).astype(np.intp))
         m = g.shape[0]
-        dist = np.stack([self._centre_distance(g, np.full(m, c, dtype=np.intp)) for c in coarse], axis=1)
+        dist = np.stack([cd(g, np.full(m, c, dtype=np.intp)) for c in coarse], axis=1)
         with np.errstate(invalid="ignore"):
             change = (dist[:, :-1] * dist[:, 1:] <= 0.0) if coarse.size > 1 else np.zeros((m, 0), dtype=bool)
         has = change.any(axis=1)
@@ -246,15 +259,15 @@ class PushFrameCamera(_CameraModel):
         best = np.clip(np.round(start), 0, n_f - 1).astype(np.intp)
         no_view = ~np.isfinite(absd).any(axis=1)
         # walk to the neighbour with the smaller distance until neither neighbour is closer
-        d0 = np.abs(self._centre_distance(g, best))
+        d0 = np.abs(cd(g, best))
         act = np.flatnonzero(~no_view)
         for _ in range(_MAX_SHIFT):
             if act.size == 0:
                 break
             jb = best[act]
             lo, hi = np.maximum(jb - 1, 0), np.minimum(jb + 1, n_f - 1)
-            dl = np.abs(self._centre_distance(g[act], lo))
-            dh = np.abs(self._centre_distance(g[act], hi))
+            dl = np.abs(cd(g[act], lo))
+            dh = np.abs(cd(g[act], hi))
             cur = d0[act]
             cur = np.where(np.isfinite(cur), cur, np.inf)
             go_lo = np.isfinite(dl) & (dl < cur) & ~(np.isfinite(dh) & (dh < dl))
@@ -263,14 +276,14 @@ class PushFrameCamera(_CameraModel):
             d0[act] = np.where(go_lo, dl, np.where(go_hi, dh, cur))
             act = act[go_lo | go_hi]
         best[no_view | ~np.isfinite(d0)] = -1
-        return self._exact_choice(g, best)
+        return self._exact_choice(g, best, vectors)
 
-    def _detector_lines(self, g: Array, j: NDArray[np.intp]) -> tuple[Array, Array, NDArray[np.bool_]]:
+    def _detector_lines(self, g: Array, j: NDArray[np.intp], vectors: VectorFn | None = None
+                        ) -> tuple[Array, Array, NDArray[np.bool_]]:
         """Distorted detector-side framelet line, sample and validity of points ``g`` in framelets ``j``."""
-        v = np.einsum("nji,nj->ni", self._rotations[j], g - self._positions[j])
-        return self._project(v)
+        return self._project((vectors or self._sensor_vectors)(g, j))
 
-    def _exact_choice(self, g: Array, best: NDArray[np.intp]) -> NDArray[np.intp]:
+    def _exact_choice(self, g: Array, best: NDArray[np.intp], vectors: VectorFn | None = None) -> NDArray[np.intp]:
         """Keep usgscsm's (undistorted) choice unless the exact, distorted projection leaves that framelet;
         then the neighbour whose exact projection is inside and closest to its centre line.
 
@@ -282,7 +295,7 @@ class PushFrameCamera(_CameraModel):
         if idx.size == 0:
             return best
         h, tol = float(self.framelet_lines), 1e-9
-        line, _, ok = self._detector_lines(g[idx], best[idx])
+        line, _, ok = self._detector_lines(g[idx], best[idx], vectors)
         fl = line - self._offset
         out_of = ~ok | (fl < -tol) | (fl > h + tol)
         fix = idx[out_of]
@@ -291,7 +304,7 @@ class PushFrameCamera(_CameraModel):
         cand = np.clip(best[fix][:, None] + np.array([-1, 0, 1])[None, :], 0, self.n_framelets - 1)
         dist = np.empty(cand.shape)
         for c in range(3):
-            lc, _, okc = self._detector_lines(g[fix], cand[:, c])
+            lc, _, okc = self._detector_lines(g[fix], cand[:, c], vectors)
             flc = lc - self._offset
             inside = okc & (flc >= -tol) & (flc <= h + tol)
             dist[:, c] = np.where(inside, np.abs(flc - 0.5 * h), np.inf)
@@ -332,8 +345,7 @@ class PushFrameCamera(_CameraModel):
         idx = np.flatnonzero(ok)
         if idx.size:
             jj = j[idx]
-            v = np.einsum("nji,nj->ni", self._rotations[jj], g[idx] - self._positions[jj])
-            det_line, smp, valid = self._project(v)
+            det_line, smp, valid = self._project(self._sensor_vectors(g[idx], jj))
             line[idx] = self.image_line(jj, det_line)
             sample[idx] = smp
             valid &= ~self._occluded(self._positions[jj], g[idx])
