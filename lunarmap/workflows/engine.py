@@ -41,6 +41,7 @@ import xarray as xr
 from ..errors import ConfigError, WorkflowError
 from .config import RunConfig, load_config
 from ..errors import LunarmapError
+from ..procmem import peak_rss_mb
 from .steps import (Done, ImageDone, ImageJob, MatchJob, adjust_step, adjusted_rpc_batch, as_dict, image_steps,
                     kernels_step, match_batch, provenance, read_pixels, tiepoints_step)
 from .store import Store, file_digest, files_digest, load_digests, save_digests, step_key
@@ -472,20 +473,6 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
             cluster.close()
         root.removeHandler(handler)
         handler.close()
-
-
-def peak_rss_mb() -> float:
-    """Peak resident memory of this process, MB (``VmHWM`` of ``/proc/self/status``; ``ru_maxrss`` elsewhere)."""
-    try:
-        with open("/proc/self/status") as fh:
-            for line in fh:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def _client(address: Any, workers: int, cfg: RunConfig) -> tuple[Any, Any]:
