@@ -403,10 +403,13 @@ def image_steps(store: Store, job: ImageJob, metakernel: str, heights: tuple[flo
     """One task per image: its ISD, footprints, RFM, pyramid and interest points, each stored under its own
     key (a rerun or a resumed run computes only the missing ones)."""
     isd = isd_step(store, job.isd_key, job.name, job.label, metakernel)
-    cam, src = _camera(isd), _source(job.pixels)
-    if tuple(src.shape) != (int(cam.n_lines), int(cam.n_samples)):
-        raise WorkflowError(f"image {job.name}: its pixels {job.pixels} are {src.shape[0]} x {src.shape[1]}, its "
-                            f"label {job.label} says {int(cam.n_lines)} x {int(cam.n_samples)} (lines x samples)")
+    stored = all(store.has(*k) for k in (("footprint", job.footprint_key, "npz"), ("pyramid", job.pyramid_key, "nc"),
+                                         ("detect", job.detect_key, "npz")))
+    if not stored:      # before any pixel work (a rerun of stored steps does not build the camera for it)
+        cam, src = _camera(isd), _source(job.pixels)
+        if tuple(src.shape) != (int(cam.n_lines), int(cam.n_samples)):
+            raise WorkflowError(f"image {job.name}: its pixels {job.pixels} are {src.shape[0]} x {src.shape[1]}, its "
+                                f"label {job.label} says {int(cam.n_lines)} x {int(cam.n_samples)} (lines x samples)")
     feet = footprint_step(store, job.footprint_key, isd, heights)
     records = [isd]
     if job.rpc_key is not None and rpc_height_range is not None:
