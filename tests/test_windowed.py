@@ -246,3 +246,30 @@ def test_match_pair_thins_to_max_points_and_keeps_the_rows_of_every_point(pair):
     assert m.line1.size == pts.line.size and m.meta["thinned"] >= pts.line.size - 60
     assert np.count_nonzero(m.status != 6) <= 60 and m.ok.sum() >= 30
     np.testing.assert_array_equal(m.line1, pts.line)
+
+
+class _Shift:
+    """A toy sensor pair: image 2 is image 1 shifted by ``ds`` samples (ground = image-1 pixels)."""
+
+    def __init__(self, ds: float = 0.0) -> None:
+        self.ds = ds
+
+    def image_to_ground(self, line, sample, height=0.0, on_miss="nan"):
+        return np.column_stack([line, sample, np.zeros_like(np.asarray(line, float))])
+
+    def ground_to_image(self, g, on_miss="nan"):
+        g = np.atleast_2d(g)
+        return g[:, 0], g[:, 1] - self.ds
+
+
+def test_thinning_finds_a_narrow_overlap_along_a_long_image():
+    """LRO NAC-L / NAC-R: a 10-pixel strip along the 20,000-line side of 200-sample images."""
+    rng = np.random.default_rng(5)
+    line, sample = rng.uniform(0, 20_000, 40_000), rng.uniform(0, 200, 40_000)
+    strength = rng.uniform(size=40_000)
+    args = (_Shift(), _Shift(190.0), (20_000, 200), (20_000, 200))
+    every = thin_points(line, sample, strength, 40_000, *args, cell=8.0)
+    assert np.isin(np.flatnonzero(sample >= 190.0), every).all()      # every point of the strip is a candidate
+    assert np.all(sample[every] > 140.0)                             # and only those near it (one dilated cell)
+    keep = thin_points(line, sample, strength, 500, *args, cell=8.0)
+    assert 250 <= keep.size <= 500 and np.all(sample[keep] > 140.0)
