@@ -155,8 +155,8 @@ BLOCK_CAMERAS = (BLOCK_NAC, BLOCK_TC, BLOCK_FRAME)
 
 #: Roll of the full-size NAC-L (+) and NAC-R (-) about the bus +x axis, degrees: their fields of view
 #: (5,064 x ~10 urad = 2.9 degrees each, principal points off-centre as LRO's) meet across the bus
-#: +z axis, their footprints overlapping by 100-250 m (200-500 pixels) as LRO's two NACs' do.
-FULL_NAC_ROLL_DEG = 1.52
+#: +z axis, their footprints overlapping by about 70 m (140 pixels), as LRO's two NACs' do.
+FULL_NAC_ROLL_DEG = 1.42
 #: Lines of a full-size NAC image (an LRO NAC EDR's 52,224).
 FULL_NAC_LINES = 52224
 

@@ -94,7 +94,7 @@ def block_fk(model: BlockModel) -> tuple[str, list[tuple[str, Mapping[str, Value
                     f"  {ids.BUS_FRAME} ({b}): spacecraft bus, CK frame relative to J2000; +z nadir, +x roughly\n"
                     f"      along the ground-track velocity; rolled about +x during each pass over {over}.\n"
                     "  Cameras (TK frames relative to the bus, boresight +z): SIM_FULL_NACL and SIM_FULL_NACR are\n"
-                    "  rolled by +/-1.52 degrees about the bus +x so that their fields of view meet across the bus\n"
+                    "  rolled by +/-1.42 degrees about the bus +x so that their fields of view meet across the bus\n"
                     "  +z axis; SIM_FULL_NACR is also turned 180 degrees about its boresight, as LRO's NAC-R; each\n"
                     "  with a random misalignment of a few hundredths of a degree.")
         return comments, sections
