@@ -32,6 +32,9 @@ from numba import prange
 __all__ = ["cast_rows", "add_noise_and_quantise"]
 
 _NAN = np.nan
+#: Image rows per parallel task and ray columns per block of the compiled loop (cache locality).
+_BAND_ROWS = 8
+_BLOCK_COLS = 256
 
 
 @numba.njit(cache=True)
@@ -315,80 +318,110 @@ def cast_rows(pos, rot, look, k, radius, tol, max_iter, lat_g, lon_g, z, lon360,
     rad_dlon = math.radians(dlon)
     rad_dlat = math.radians(dlat)
     inv_k2 = 1.0 / (k * k)
-    none = (_NAN, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    for r in prange(rows):
-        for c in range(cols):
-            out[r, c] = 0.0
-        for a in range(k):
-            sr = r * k + a
-            pi = sr if pos.shape[0] > 1 else 0
-            li = sr if look.shape[0] > 1 else 0
-            ox, oy, oz = pos[pi, 0], pos[pi, 1], pos[pi, 2]
-            h1 = _NAN   # heights of the previous two rays of this ray row
-            h2 = _NAN
-            ref = none
-            for sc in range(cols * k):
-                lx, ly, lz = look[li, sc, 0], look[li, sc, 1], look[li, sc, 2]
-                dx = rot[pi, 0, 0] * lx + rot[pi, 0, 1] * ly + rot[pi, 0, 2] * lz
-                dy = rot[pi, 1, 0] * lx + rot[pi, 1, 1] * ly + rot[pi, 1, 2] * lz
-                dz = rot[pi, 2, 0] * lx + rot[pi, 2, 1] * ly + rot[pi, 2, 2] * lz
-                inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
-                dx *= inv
-                dy *= inv
-                dz *= inv
-                # warm start: the previous rays' heights, extrapolated linearly
-                start = 2.0 * h1 - h2 if h2 == h2 else h1
-                h, s = _intersect(ox, oy, oz, dx, dy, dz, radius, start, h_lo, h_hi, tol, max_iter,
-                                  lat_g, lon_g, z, inv_lat, inv_lon, lon360, ref)
-                pc = sc // k
-                if not math.isfinite(h):
-                    out[r, pc] += h   # NaN (miss) or +inf (no convergence) marks the pixel
+    n_bands = (rows + _BAND_ROWS - 1) // _BAND_ROWS
+    # Bands of image rows, each walked in blocks of columns: a block's rays land on a small patch of the
+    # scene, so the DTM and albedo tile rows they read stay in cache (whole 5,064-ray rows do not); each
+    # ray row keeps its warm start (the previous rays' heights, the linearisation point) from block to block.
+    for band in prange(n_bands):
+        r0 = band * _BAND_ROWS
+        r1 = min(r0 + _BAND_ROWS, rows)
+        n_rr = (r1 - r0) * k
+        h1s = np.full(n_rr, _NAN)   # heights of the previous two rays of each ray row
+        h2s = np.full(n_rr, _NAN)
+        refs = np.full((n_rr, 10), _NAN)
+        for r in range(r0, r1):
+            for c in range(cols):
+                out[r, c] = 0.0
+        for c0 in range(0, cols * k, _BLOCK_COLS):
+            c1 = min(c0 + _BLOCK_COLS, cols * k)
+            for rr in range(n_rr):
+                sr = r0 * k + rr
+                r = sr // k
+                pi = sr if pos.shape[0] > 1 else 0
+                li = sr if look.shape[0] > 1 else 0
+                ox, oy, oz = pos[pi, 0], pos[pi, 1], pos[pi, 2]
+                h1 = h1s[rr]
+                h2 = h2s[rr]
+                q = refs[rr]
+                ref = (q[0], q[1], q[2], q[3], q[4], q[5], q[6], q[7], q[8], q[9])
+                for sc in range(c0, c1):
+                    lx, ly, lz = look[li, sc, 0], look[li, sc, 1], look[li, sc, 2]
+                    dx = rot[pi, 0, 0] * lx + rot[pi, 0, 1] * ly + rot[pi, 0, 2] * lz
+                    dy = rot[pi, 1, 0] * lx + rot[pi, 1, 1] * ly + rot[pi, 1, 2] * lz
+                    dz = rot[pi, 2, 0] * lx + rot[pi, 2, 1] * ly + rot[pi, 2, 2] * lz
+                    inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
+                    dx *= inv
+                    dy *= inv
+                    dz *= inv
+                    # warm start: the previous rays' heights, extrapolated linearly
+                    start = 2.0 * h1 - h2 if h2 == h2 else h1
+                    h, s = _intersect(ox, oy, oz, dx, dy, dz, radius, start, h_lo, h_hi, tol, max_iter,
+                                      lat_g, lon_g, z, inv_lat, inv_lon, lon360, ref)
+                    pc = sc // k
+                    if not math.isfinite(h):
+                        out[r, pc] += h   # NaN (miss) or +inf (no convergence) marks the pixel
+                        if want_xyz:
+                            xyz[sr, sc, 0] = _NAN
+                            xyz[sr, sc, 1] = _NAN
+                            xyz[sr, sc, 2] = _NAN
+                        h1 = _NAN
+                        h2 = _NAN
+                        ref = (_NAN, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+                        continue
+                    h2 = h1
+                    h1 = h
+                    gx = ox + s * dx
+                    gy = oy + s * dy
+                    gz = oz + s * dz
                     if want_xyz:
-                        xyz[sr, sc, 0] = _NAN
-                        xyz[sr, sc, 1] = _NAN
-                        xyz[sr, sc, 2] = _NAN
-                    h1 = _NAN
-                    h2 = _NAN
-                    ref = none
-                    continue
-                h2 = h1
-                h1 = h
-                gx = ox + s * dx
-                gy = oy + s * dy
-                gz = oz + s * dz
-                if want_xyz:
-                    xyz[sr, sc, 0] = gx
-                    xyz[sr, sc, 1] = gy
-                    xyz[sr, sc, 2] = gz
-                lon, lat = _lonlat(gx, gy, gz)
-                ref = _reference(gx, gy, gz, lon, lat)
-                if alb_mode == 1:
-                    value = _tiled_albedo(t1, t2, alb_p, lon, lat)
-                else:
-                    value = _bilinear(alb_lat, alb_lon, alb_z, a_inv_lat, a_inv_lon, _wrap_lon(lon, alb_lon360), lat)
-                if use_sun:
-                    # surface_normals: central differences over one DTM node spacing
-                    h_e = (_bilinear(lat_g, lon_g, z, inv_lat, inv_lon, _wrap_lon(lon + dlon / 2, lon360), lat)
-                           - _bilinear(lat_g, lon_g, z, inv_lat, inv_lon, _wrap_lon(lon - dlon / 2, lon360), lat))
-                    wl = _wrap_lon(lon, lon360)
-                    h_n = (_bilinear(lat_g, lon_g, z, inv_lat, inv_lon, wl, lat + dlat / 2)
-                           - _bilinear(lat_g, lon_g, z, inv_lat, inv_lon, wl, lat - dlat / 2))
-                    # sines and cosines of latitude and longitude from the point itself
-                    rho = math.sqrt(gx * gx + gy * gy)
-                    gn = math.sqrt(gx * gx + gy * gy + gz * gz)
-                    cphi, sphi, clam, slam = rho / gn, gz / gn, gx / rho, gy / rho
-                    dz_de = h_e / (radius * cphi * rad_dlon)
-                    dz_dn = h_n / (radius * rad_dlat)
-                    nx = cphi * clam + dz_de * slam + dz_dn * sphi * clam
-                    ny = cphi * slam - dz_de * clam + dz_dn * sphi * slam
-                    nz = sphi - dz_dn * cphi
-                    nn = math.sqrt(nx * nx + ny * ny + nz * nz)
-                    cos_i = (nx * sun[0] + ny * sun[1] + nz * sun[2]) / nn
-                    cos_flat = max((gx * sun[0] + gy * sun[1] + gz * sun[2]) / gn, 0.05)
-                    value = value * max(cos_i, 0.0) / cos_flat
-                out[r, pc] += value
-        for c in range(cols):
-            out[r, c] *= inv_k2
+                        xyz[sr, sc, 0] = gx
+                        xyz[sr, sc, 1] = gy
+                        xyz[sr, sc, 2] = gz
+                    lon, lat = _lonlat(gx, gy, gz)
+                    ref = _reference(gx, gy, gz, lon, lat)
+                    if alb_mode == 1:
+                        value = _tiled_albedo(t1, t2, alb_p, lon, lat)
+                    else:
+                        value = _bilinear(alb_lat, alb_lon, alb_z, a_inv_lat, a_inv_lon, _wrap_lon(lon, alb_lon360),
+                                          lat)
+                    if use_sun:
+                        value *= _lambert(gx, gy, gz, lon, lat, lat_g, lon_g, z, inv_lat, inv_lon, lon360, dlat, dlon,
+                                          rad_dlat, rad_dlon, radius, sun)
+                    out[r, pc] += value
+                h1s[rr] = h1
+                h2s[rr] = h2
+                for m in range(10):
+                    refs[rr, m] = ref[m]
+        for r in range(r0, r1):
+            for c in range(cols):
+                out[r, c] *= inv_k2
+
+
+@numba.njit(cache=True)
+def _lambert(gx, gy, gz, lon, lat, lat_g, lon_g, z, inv_lat, inv_lon, lon360, dlat, dlon, rad_dlat, rad_dlon,
+             radius, sun):
+    """``max(cos i, 0) / max(cos i_flat, 0.05)`` at a ground point: render_image's shading.
+
+    The normal is surface_normals' (central differences over one DTM node spacing); the sines and
+    cosines of latitude and longitude come from the point itself.
+    """
+    h_e = (_bilinear(lat_g, lon_g, z, inv_lat, inv_lon, _wrap_lon(lon + dlon / 2, lon360), lat)
+           - _bilinear(lat_g, lon_g, z, inv_lat, inv_lon, _wrap_lon(lon - dlon / 2, lon360), lat))
+    wl = _wrap_lon(lon, lon360)
+    h_n = (_bilinear(lat_g, lon_g, z, inv_lat, inv_lon, wl, lat + dlat / 2)
+           - _bilinear(lat_g, lon_g, z, inv_lat, inv_lon, wl, lat - dlat / 2))
+    rho = math.sqrt(gx * gx + gy * gy)
+    gn = math.sqrt(gx * gx + gy * gy + gz * gz)
+    cphi, sphi, clam, slam = rho / gn, gz / gn, gx / rho, gy / rho
+    dz_de = h_e / (radius * cphi * rad_dlon)
+    dz_dn = h_n / (radius * rad_dlat)
+    nx = cphi * clam + dz_de * slam + dz_dn * sphi * clam
+    ny = cphi * slam - dz_de * clam + dz_dn * sphi * slam
+    nz = sphi - dz_dn * cphi
+    nn = math.sqrt(nx * nx + ny * ny + nz * nz)
+    cos_i = (nx * sun[0] + ny * sun[1] + nz * sun[2]) / nn
+    cos_flat = max((gx * sun[0] + gy * sun[1] + gz * sun[2]) / gn, 0.05)
+    return max(cos_i, 0.0) / cos_flat
 
 
 @numba.njit(cache=True)
