@@ -2,6 +2,8 @@
 #   make demo   - create .venv, install lunarmap, write the synthetic mission and print ground points
 #   make test   - create .venv, install lunarmap with test extras, run the test suite
 PYTHON ?= python3
+# test processes (pytest-xdist): the suite's tests are independent; 2 = the machine's cores
+TEST_WORKERS ?= 2
 VENV   ?= .venv
 BIN     = $(VENV)/bin
 
@@ -21,7 +23,7 @@ demo: install
 	$(BIN)/lunarmap run --example --output demo_output
 
 test: install
-	$(BIN)/python -m pytest -q -rs
+	$(BIN)/python -m pytest -q -rs -n $(TEST_WORKERS)
 
 bench: install
 	$(BIN)/python bench/bench_camera.py

@@ -336,6 +336,18 @@ class CubeWriteError(CubeError, OSError):
     """
 
 
+class ImageWindowError(CubeError, InvalidInputError):
+    """A window of an image cannot be read: outside the image, or the file is missing, damaged or shorter
+    than its header says where the window lies (the message names the file and the window)."""
+
+
+class PyramidError(CubeError):
+    """An image pyramid (overview) store is missing, damaged or does not belong to its image."""
+
+
+__all__ += ["ImageWindowError", "PyramidError"]
+
+
 class MissingSpiceTablesError(CubeError, LabelError):
     """An ISIS cube lacks the tables ``spiceinit`` attaches (``InstrumentPointing``, ...), or a keyword
     a camera without kernels needs (``NaifKeywords``, a ``CLOCK_ET_..._COMPUTED`` entry)."""

@@ -171,7 +171,7 @@ def test_robust_first_in_the_run_is_the_first_adjustment(example, serial):
 
 
 def test_interrupted_run_resumes_with_only_the_unfinished_steps(example, monkeypatch):
-    import lunarmap.workflows.engine as run_mod
+    import lunarmap.workflows.steps as run_mod     # match batches call their pairs' match_step
 
     cfg = _config(example, "interrupted")
     calls = {"n": 0}

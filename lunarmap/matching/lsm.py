@@ -51,6 +51,7 @@ displaces the match along the epipolar line by a model error the fit cannot see.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -58,7 +59,7 @@ from scipy.ndimage import gaussian_filter
 
 from ..errors import InvalidInputError
 from .ncc import window_offsets
-from .resample import bicubic_with_gradient, bilinear
+from .resample import _windowed, bicubic_with_gradient, bilinear
 
 __all__ = ["LsmResult", "lsm_match"]
 
@@ -146,12 +147,7 @@ def lsm_match(image1: NDArray, image2: NDArray, line1: Array, sample1: Array, li
         raise InvalidInputError(f"LSM needs a window half-size >= 2 (got {half})")
     if not (np.isfinite(presmooth) and presmooth >= 0.0):
         raise InvalidInputError(f"LSM presmooth must be a finite sigma >= 0 pixels (got {presmooth})")
-    # Convert once: the resamplers would otherwise copy a float32 image on every call.
-    image1 = np.ascontiguousarray(image1, dtype=float)
-    image2 = np.ascontiguousarray(image2, dtype=float)
-    if presmooth > 0.0:
-        image1 = _smooth(image1, presmooth)
-        image2 = _smooth(image2, presmooth)
+    image1, image2 = _prepared(image1, presmooth), _prepared(image2, presmooth)
     line1, sample1, line2, sample2 = (np.asarray(x, dtype=float).ravel() for x in (line1, sample1, line2, sample2))
     n = line1.size
     affine = np.asarray(affine, dtype=float).reshape(n, 2, 2)
@@ -170,6 +166,17 @@ def lsm_match(image1: NDArray, image2: NDArray, line1: Array, sample1: Array, li
         _lsm_batch(image1, image2, line1[sl], sample1[sl], line2[sl], sample2[sl], affine[sl], half, max_iter, tol,
                    max_shift, presmooth, None if direction is None else direction[sl], out, sl)
     return out
+
+
+def _prepared(image: Any, presmooth: float) -> Any:
+    """An image as least-squares matching samples it: float64 (converted once: the resamplers would
+    otherwise copy a float32 image on every call), smoothed by ``presmooth``. A windowed image
+    (:mod:`.windowed`) smooths each region it reads with the filter's reach around it: the values of
+    the smoothed whole image."""
+    if _windowed(image):
+        return image.smoothed(presmooth)
+    image = np.ascontiguousarray(image, dtype=float)
+    return _smooth(image, presmooth) if presmooth > 0.0 else image
 
 
 def _smooth(image: Array, sigma: float) -> Array:

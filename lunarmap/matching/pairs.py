@@ -21,13 +21,16 @@ from .ncc import ncc_match
 from ..camera.sensor import SensorModel
 from .predict import Prediction, predict_conjugates
 from .pyramid import build_pyramid
+from .resample import _windowed
+from .windowed import spatial_order
 
 __all__ = ["MatchParams", "PairMatches", "match_points", "as_array", "STATUS"]
 
 Array = NDArray[np.float64]
 
 #: Status codes of a match attempt.
-STATUS = {"ok": 0, "outside": 1, "ncc_failed": 2, "low_correlation": 3, "lsm_failed": 4, "outlier": 5}
+STATUS = {"ok": 0, "outside": 1, "ncc_failed": 2, "low_correlation": 3, "lsm_failed": 4, "outlier": 5,
+          "thinned": 6}
 
 
 @dataclass
@@ -120,6 +123,11 @@ def as_array(image: xr.DataArray | NDArray, label: str, saturation: float | None
     return arr
 
 
+def _pyramid(image: Any, levels: int) -> list[Any]:
+    """Pyramid of an in-memory image, or the levels of a windowed one (stored or derived by window)."""
+    return image.pyramid(levels) if _windowed(image) else build_pyramid(image, levels)
+
+
 def _fill_affine(pred: Prediction) -> None:
     """Points near an image edge lose their finite-difference affine map: use the median one."""
     good = np.all(np.isfinite(pred.affine), axis=(1, 2))
@@ -136,8 +144,9 @@ def match_points(image1: NDArray, image2: NDArray, sensor1: SensorModel, sensor2
 
     Parameters
     ----------
-    image1, image2 : ndarray
-        Grey levels with NaN at invalid pixels (see :func:`as_array`).
+    image1, image2 : ndarray or WindowedImage
+        Grey levels with NaN at invalid pixels (see :func:`as_array`), or images read by window
+        (:class:`~lunarmap.matching.windowed.WindowedImage`: images of any size; same results).
     sensor1, sensor2 : SensorModel
         Sensor models (cameras or RPCs).
     line1, sample1 : array_like (n,)
@@ -172,8 +181,7 @@ def match_points(image1: NDArray, image2: NDArray, sensor1: SensorModel, sensor2
     idx = np.flatnonzero(inside)
     if idx.size == 0:
         return res
-    pyr1, pyr2 = pyramids or (build_pyramid(image1, params.pyramid_levels),
-                              build_pyramid(image2, params.pyramid_levels))
+    pyr1, pyr2 = pyramids or (_pyramid(image1, params.pyramid_levels), _pyramid(image2, params.pyramid_levels))
     search = params.search
     pl, ps = pred.line[idx], pred.sample[idx]
     if params.bias_sample > 0 and params.search > 2.0 * params.local_search and idx.size > params.bias_sample:
@@ -182,6 +190,11 @@ def match_points(image1: NDArray, image2: NDArray, sensor1: SensorModel, sensor2
             pl, ps = pl + offset[0], ps + offset[1]
             search = params.local_search
             res.meta["prediction_offset_px"] = (float(offset[0]), float(offset[1]))
+    # Points in Z order of image 1: each batch of the correlation and of LSM then covers a compact
+    # region of both images (few, small windows of an image read by window); every point is matched
+    # on its own, so the order changes no result.
+    order = spatial_order(l1[idx], s1[idx])
+    idx, pl, ps = idx[order], pl[order], ps[order]
     ncc = ncc_match(pyr1, pyr2, l1[idx], s1[idx], pl, ps, pred.affine[idx], half=params.half, search=search)
     failed = ~np.isfinite(ncc.correlation)
     low = ~failed & (ncc.correlation < params.min_ncc)

@@ -4,9 +4,15 @@ CSM convention: the centre of array element ``[i, j]`` is at ``(line, sample) =
 (i + 0.5, j + 0.5)``. Samples outside the pixel-centre hull are NaN, and NaN
 pixels propagate, so every window that touches invalid data is flagged by a
 NaN instead of silently mixing in fill values.
+
+Every function takes an in-memory array or a windowed image
+(:class:`~lunarmap.matching.windowed.WindowedImage`, anything with ``region`` and ``shape``):
+the latter is sampled in the regions its stencils need, with the same values.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -16,6 +22,33 @@ from ..errors import InvalidInputError
 __all__ = ["bilinear", "bicubic", "bicubic_with_gradient"]
 
 Array = NDArray[np.float64]
+
+
+def _windowed(image: Any) -> bool:
+    return not isinstance(image, np.ndarray) and hasattr(image, "region") and hasattr(image, "shape")
+
+
+def _by_region(fn: Any, image: Any, line: ArrayLike, sample: ArrayLike, before: int, after: int,
+               n_out: int) -> Any:
+    """``fn`` on the regions of a windowed image that hold the call's stencils (see :mod:`.windowed`).
+
+    Each group of coordinate rows is sampled in its own region, shifted by the region's integer
+    origin (exact in floating point), so the values are those ``fn`` gives on the whole image.
+    """
+    from .windowed import region_groups
+
+    y = np.asarray(line, dtype=float)
+    x = np.asarray(sample, dtype=float)
+    y, x = np.broadcast_arrays(y, x)
+    shape = y.shape
+    yy, xx = (np.atleast_1d(y), np.atleast_1d(x)) if y.ndim else (y.reshape(1), x.reshape(1))
+    outs = [np.full(yy.shape, np.nan) for _ in range(n_out)]
+    for rows, (a0, a1, b0, b1) in region_groups(yy - 0.5, xx - 0.5, image.shape, before, after):
+        res = fn(image.region(a0, a1, b0, b1), yy[rows] - a0, xx[rows] - b0)
+        for o, r in zip(outs, res if n_out > 1 else (res,)):
+            o[rows] = r
+    outs = [o.reshape(shape) for o in outs]
+    return tuple(outs) if n_out > 1 else outs[0]
 
 
 def bilinear(image: NDArray, line: ArrayLike, sample: ArrayLike) -> Array:
@@ -34,6 +67,8 @@ def bilinear(image: NDArray, line: ArrayLike, sample: ArrayLike) -> Array:
     ndarray, shape (...,) or (..., C)
         Interpolated values, NaN outside ``[0.5, H - 0.5] x [0.5, W - 0.5]``.
     """
+    if _windowed(image):
+        return _by_region(bilinear, image, line, sample, 0, 1, 1)
     y = np.asarray(line, dtype=float) - 0.5
     x = np.asarray(sample, dtype=float) - 0.5
     y, x = np.broadcast_arrays(y, x)
@@ -114,6 +149,8 @@ def bicubic(image: NDArray, line: ArrayLike, sample: ArrayLike) -> Array:
     ndarray
         Grey levels; NaN outside ``[1.5, H - 1.5] x [1.5, W - 1.5]`` and next to NaN pixels.
     """
+    if _windowed(image):
+        return _by_region(bicubic, image, line, sample, 1, 2, 1)
     flat, base, fy, fx, inside, w, shape = _cubic_setup(image, line, sample)
     wx = _keys(fx)
     wy = _keys(fy)
@@ -152,6 +189,8 @@ def bicubic_with_gradient(image: NDArray, line: ArrayLike, sample: ArrayLike) ->
     value, d_line, d_sample : ndarray
         Grey levels and grey levels per pixel.
     """
+    if _windowed(image):
+        return _by_region(bicubic_with_gradient, image, line, sample, 1, 2, 3)
     flat, base, fy, fx, inside, w, shape = _cubic_setup(image, line, sample)
     wx, dwx = _keys(fx), _dkeys(fx)
     wy, dwy = _keys(fy), _dkeys(fy)

@@ -36,9 +36,10 @@ from ..ncread import load_netcdf
 from .interest import InterestPoints, foerstner
 from .pairs import STATUS, MatchParams, PairMatches, match_points
 from .ransac import RansacParams, ransac_local_affine
+from .thinning import thin_points
 from .tracks import Observations, build_tracks
 
-__all__ = ["DetectParams", "TiePointParams", "detect_tile", "tile_windows", "match_pair", "assemble_tiepoints",
+__all__ = ["DetectParams", "TiePointParams", "detect_tile", "tile_windows", "match_pair", "assemble_tiepoints", "TrackRows",
            "write_tiepoints", "read_tiepoints", "check_tiepoint_table", "TIEPOINT_VARIABLES"]
 
 
@@ -58,12 +59,24 @@ class DetectParams:
 
 @dataclass
 class TiePointParams:
-    """All tuning of the chain."""
+    """All tuning of the chain.
+
+    Attributes
+    ----------
+    detect, match, ransac
+        Detection, matching and RANSAC settings.
+    track_tol : float
+        Positions of one image closer than this (pixels) are one feature of a track.
+    max_points : int, optional
+        Most interest points of image 1 matched per pair, spatially uniform over the overlap
+        (:func:`~lunarmap.matching.thinning.thin_points`); ``None`` matches every point.
+    """
 
     detect: DetectParams = field(default_factory=DetectParams)
     match: MatchParams = field(default_factory=MatchParams)
     ransac: RansacParams = field(default_factory=RansacParams)
     track_tol: float = 0.5
+    max_points: int | None = None
 
 
 def tile_windows(shape: tuple[int, int], tile: int, halo: int) -> list[tuple[tuple[int, int, int, int],
@@ -98,9 +111,26 @@ def merge_points(parts: Sequence[InterestPoints]) -> InterestPoints:
 
 def match_pair(image1: NDArray, image2: NDArray, sensor1: Any, sensor2: Any, points: InterestPoints,
                height: Any, params: TiePointParams, label: str) -> PairMatches:
-    """Match one image pair and screen the matches with RANSAC (outliers get status ``outlier``)."""
-    m = match_points(image1, image2, sensor1, sensor2, points.line, points.sample, height=height,
-                     params=params.match, label=label)
+    """Match one image pair and screen the matches with RANSAC (outliers get status ``outlier``).
+
+    With ``params.max_points`` the points are first thinned to that many, uniformly over the overlap
+    (the others get status ``thinned``). ``image1``, ``image2``: arrays or windowed images
+    (:class:`~lunarmap.matching.windowed.WindowedImage`).
+    """
+    n = points.line.size
+    keep = None
+    if params.max_points is not None and n > params.max_points:
+        h = float(np.nanmedian(np.asarray(height)))
+        keep = thin_points(points.line, points.sample, points.strength, params.max_points, sensor1, sensor2,
+                           tuple(image1.shape), tuple(image2.shape), h, cell=float(params.detect.cell))
+    if keep is None:
+        m = match_points(image1, image2, sensor1, sensor2, points.line, points.sample, height=height,
+                         params=params.match, label=label)
+    else:
+        # per-point heights follow their points; a DTM or one height serves all
+        h_keep = height if isinstance(height, xr.DataArray) or np.ndim(height) == 0 else np.asarray(height)[keep]
+        m = _expand(match_points(image1, image2, sensor1, sensor2, points.line[keep], points.sample[keep],
+                                 height=h_keep, params=params.match, label=label), keep, n, points)
     ok = m.ok
     if np.count_nonzero(ok) >= 3:
         p = m.prediction
@@ -113,64 +143,112 @@ def match_pair(image1: NDArray, image2: NDArray, sensor1: Any, sensor2: Any, poi
     return m
 
 
+def _expand(m: PairMatches, keep: NDArray[np.intp], n: int, points: InterestPoints) -> PairMatches:
+    """Matches of the kept points as rows of all ``n`` points (the others ``thinned``)."""
+    from .predict import Prediction
+
+    def full(a: NDArray, fill: float = np.nan) -> NDArray:
+        out = np.full((n,) + a.shape[1:], fill, dtype=a.dtype)
+        out[keep] = a
+        return out
+
+    status = np.full(n, STATUS["thinned"], dtype=np.int8)
+    status[keep] = m.status
+    p = m.prediction
+    pred = Prediction(full(p.line), full(p.sample), full(p.affine), full(p.epipolar), full(p.height))
+    line1, sample1 = points.line.astype(float), points.sample.astype(float)
+    return PairMatches(line1, sample1, full(m.line2), full(m.sample2), full(m.sigma_line), full(m.sigma_sample),
+                       full(m.correlation), status, pred, dict(m.meta, thinned=int(n - keep.size)))
+
+
+class TrackRows:
+    """Matched rows of image pairs, gathered pair by pair and joined into tracks at the end.
+
+    Only what the tie-point table needs is kept per pair (its matched rows, not the attempted points'
+    predictions), so a run's memory grows with its matches, not with its interest points.
+    """
+
+    def __init__(self) -> None:
+        self.parts: dict[str, list[NDArray]] = {k: [] for k in ("img", "node", "line", "sample", "sl", "ss", "corr",
+                                                                  "ea", "eb")}
+        self.n_rows = 0
+        self.next_node = 0
+        self.anchor_base: dict[int, int] = {}
+        self.stats: dict[tuple[int, int], str] = {}
+
+    @property
+    def n_pairs(self) -> int:
+        return len(self.stats)
+
+    def add(self, i: int, j: int, index: NDArray, line1: NDArray, sample1: NDArray, line2: NDArray, sample2: NDArray,
+            sigma_line: NDArray, sigma_sample: NDArray, correlation: NDArray, n_points: int) -> None:
+        """The matched rows of pair ``(i, j)``: ``index`` of the matched interest points of image ``i``."""
+        k = int(np.size(index))
+        self.stats[(i, j)] = f"{k}/{n_points}"
+        if k == 0:
+            return
+        if i not in self.anchor_base:  # anchors of image i: one node per interest point, shared by its pairs
+            self.anchor_base[i] = self.next_node
+            self.next_node += 10 ** 9
+        anchors = self.anchor_base[i] + np.asarray(index, dtype=np.int64)
+        matched = self.next_node + np.arange(k)
+        self.next_node += k
+        s_l = np.asarray(sigma_line, float) / np.sqrt(2.0)
+        s_s = np.asarray(sigma_sample, float) / np.sqrt(2.0)
+        p = self.parts
+        p["img"] += [np.full(k, i), np.full(k, j)]
+        p["node"] += [anchors, matched]
+        p["line"] += [np.asarray(line1, float), np.asarray(line2, float)]
+        p["sample"] += [np.asarray(sample1, float), np.asarray(sample2, float)]
+        p["sl"] += [s_l, s_l]
+        p["ss"] += [s_s, s_s]
+        p["corr"] += [np.asarray(correlation, float)] * 2
+        p["ea"].append(self.n_rows + np.arange(k))
+        p["eb"].append(self.n_rows + k + np.arange(k))
+        self.n_rows += 2 * k
+
+    def table(self, names: Sequence[str], track_tol: float = 0.5) -> xr.Dataset:
+        """The tie-point table (see the module docstring)."""
+        def cat(key: str, dtype: type) -> NDArray:
+            parts = self.parts[key]
+            return np.concatenate(parts).astype(dtype) if parts else np.empty(0, dtype=dtype)
+
+        obs = Observations(cat("img", np.int64), cat("node", np.int64), cat("line", float), cat("sample", float),
+                           cat("sl", float), cat("ss", float), cat("corr", float), cat("ea", np.int64),
+                           cat("eb", np.int64))
+        table, n_conflicts = build_tracks(obs, tol=track_tol)
+        pair_stats = {f"{names[i]}|{names[j]}": v for (i, j), v in self.stats.items()}
+        return xr.Dataset(
+            {
+                "point_id": ("observation", table["point_id"].to_numpy(np.int64),
+                             {"long_name": "tie-point (track) id"}),
+                "image_id": ("observation", table["image_id"].to_numpy(np.int32),
+                             {"long_name": "index into the image coordinate"}),
+                "line": ("observation", table["line"].to_numpy(float), {"units": "pixel"}),
+                "sample": ("observation", table["sample"].to_numpy(float), {"units": "pixel"}),
+                "sigma_line": ("observation", table["sigma_line"].to_numpy(float), {"units": "pixel"}),
+                "sigma_sample": ("observation", table["sigma_sample"].to_numpy(float), {"units": "pixel"}),
+                "correlation": ("observation", table["correlation"].to_numpy(float), {"units": "1"}),
+            },
+            coords={"image": ("image", np.asarray(list(names), dtype=str))},
+            attrs={"pixel_convention": "CSM: centre of the first pixel at (0.5, 0.5)",
+                   "sigma_convention": "LSM standard deviation of the match split equally: sigma / sqrt(2) per image",
+                   "n_conflicting_tracks_dropped": n_conflicts,
+                   "matches_per_pair": "; ".join(f"{k}: {v}" for k, v in pair_stats.items()),
+                   "source": "lunarmap.matching"},
+        )
+
+
 def assemble_tiepoints(results: Sequence[tuple[int, int, PairMatches]], names: Sequence[str],
                        track_tol: float = 0.5) -> xr.Dataset:
     """Join pair matches into tracks and return the tie-point table (see the module docstring)."""
-    img, node, line, samp, sl, ss, corr, ea, eb = ([] for _ in range(9))
-    n_rows = 0
-    next_node = 0
-    anchor_base = {}
+    rows = TrackRows()
     for i, j, m in results:
         ok = np.flatnonzero(m.ok)
-        k = ok.size
-        if k == 0:
-            continue
-        if i not in anchor_base:  # anchors of image i: one node per interest point, shared by its pairs
-            anchor_base[i] = next_node
-            next_node += 10 ** 9
-        anchors = anchor_base[i] + ok
-        matched = next_node + np.arange(k)
-        next_node += k
-        s_l = m.sigma_line[ok] / np.sqrt(2.0)
-        s_s = m.sigma_sample[ok] / np.sqrt(2.0)
-        img += [np.full(k, i), np.full(k, j)]
-        node += [anchors, matched]
-        line += [m.line1[ok], m.line2[ok]]
-        samp += [m.sample1[ok], m.sample2[ok]]
-        sl += [s_l, s_l]
-        ss += [s_s, s_s]
-        corr += [m.correlation[ok], m.correlation[ok]]
-        ea.append(n_rows + np.arange(k))
-        eb.append(n_rows + k + np.arange(k))
-        n_rows += 2 * k
-
-    def cat(parts: list, dtype: type) -> NDArray:
-        return np.concatenate(parts).astype(dtype) if parts else np.empty(0, dtype=dtype)
-
-    obs = Observations(cat(img, np.int64), cat(node, np.int64), cat(line, float), cat(samp, float),
-                       cat(sl, float), cat(ss, float), cat(corr, float), cat(ea, np.int64), cat(eb, np.int64))
-    table, n_conflicts = build_tracks(obs, tol=track_tol)
-    pair_stats = {f"{names[i]}|{names[j]}": f"{m.meta.get('n_ok', 0)}/{m.meta.get('n_points', 0)}"
-                  for i, j, m in results}
-    ds = xr.Dataset(
-        {
-            "point_id": ("observation", table["point_id"].to_numpy(np.int64), {"long_name": "tie-point (track) id"}),
-            "image_id": ("observation", table["image_id"].to_numpy(np.int32),
-                         {"long_name": "index into the image coordinate"}),
-            "line": ("observation", table["line"].to_numpy(float), {"units": "pixel"}),
-            "sample": ("observation", table["sample"].to_numpy(float), {"units": "pixel"}),
-            "sigma_line": ("observation", table["sigma_line"].to_numpy(float), {"units": "pixel"}),
-            "sigma_sample": ("observation", table["sigma_sample"].to_numpy(float), {"units": "pixel"}),
-            "correlation": ("observation", table["correlation"].to_numpy(float), {"units": "1"}),
-        },
-        coords={"image": ("image", np.asarray(list(names), dtype=str))},
-        attrs={"pixel_convention": "CSM: centre of the first pixel at (0.5, 0.5)",
-               "sigma_convention": "LSM standard deviation of the match split equally: sigma / sqrt(2) per image",
-               "n_conflicting_tracks_dropped": n_conflicts,
-               "matches_per_pair": "; ".join(f"{k}: {v}" for k, v in pair_stats.items()),
-               "source": "lunarmap.matching"},
-    )
-    return ds
+        rows.add(i, j, ok, m.line1[ok], m.sample1[ok], m.line2[ok], m.sample2[ok], m.sigma_line[ok],
+                 m.sigma_sample[ok], m.correlation[ok], n_points=0)
+        rows.stats[(i, j)] = f"{m.meta.get('n_ok', 0)}/{m.meta.get('n_points', 0)}"
+    return rows.table(names, track_tol)
 
 
 def write_tiepoints(ds: xr.Dataset, path: str | os.PathLike) -> Path:

@@ -29,6 +29,8 @@ Layout (every relative path is taken relative to the configuration file's folder
     cell = 48                        # interest-point grid cell, pixels
     search = 128.0                   # NCC search radius, pixels
     min_overlap = 0.05               # pairs whose footprints overlap less than this fraction are skipped
+    max_points = 1000                # most interest points matched per pair, uniform over the overlap
+                                     # (0: all of them)
 
     [adjust]
     degree = 1                       # line-scan correction polynomial degree
@@ -87,6 +89,9 @@ __all__ = ["ImageSpec", "NavigationConfig", "QCConfig", "RunConfig", "load_confi
 
 _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 
+#: Default ``[tiepoints] max_points``: most interest points matched per pair (see the README's curve).
+DEFAULT_MAX_POINTS = 1000
+
 
 @dataclass(frozen=True)
 class ImageSpec:
@@ -144,6 +149,7 @@ class RunConfig:
     cell: int = 48
     search: float = 128.0
     min_overlap: float = 0.05
+    max_points: int | None = None
     degree: int = 1
     estimate_tie_variance: bool = True
     ftol: float = 1e-10
@@ -167,7 +173,8 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], bool]]] = {
     "dtm": {"path": (str, True)},
     "points": {"path": (str, True)},
     "rpc": {"enabled": (bool, False), "height_range": (list, False)},
-    "tiepoints": {"cell": (int, False), "search": ((int, float), False), "min_overlap": ((int, float), False)},
+    "tiepoints": {"cell": (int, False), "search": ((int, float), False), "min_overlap": ((int, float), False),
+                  "max_points": (int, False)},
     "adjust": {"degree": (int, False), "estimate_tie_variance": (bool, False), "ftol": ((int, float), False),
                "navigation": (dict, False), "qc": (dict, False)},
     "report": {"html": (bool, False)},
@@ -332,6 +339,9 @@ def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",
     min_overlap = float(tp.get("min_overlap", 0.05))
     if not 0.0 <= min_overlap < 1.0:
         raise ConfigError(f"{src}: tiepoints.min_overlap must be in [0, 1), got {min_overlap}")
+    max_points = int(tp.get("max_points", DEFAULT_MAX_POINTS))
+    if max_points < 0 or 0 < max_points < 16:
+        raise ConfigError(f"{src}: tiepoints.max_points must be 0 (all points) or >= 16, got {max_points}")
     return RunConfig(
         source=Path(source).resolve() if source != "<dict>" else Path(source),
         output=_path(base_p, run["output"], "run.output", src, must_exist=False),
@@ -340,7 +350,7 @@ def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",
         dtm=_path(base_p, d["dtm"]["path"], "dtm.path", src) if "dtm" in d else None,
         points=_path(base_p, d["points"]["path"], "points.path", src) if "points" in d else None,
         rpc_enabled=bool(rpc.get("enabled", True)), rpc_height_range=height_range, cell=cell, search=search,
-        min_overlap=min_overlap, degree=degree, estimate_tie_variance=bool(adj.get("estimate_tie_variance", True)),
+        min_overlap=min_overlap, max_points=max_points or None, degree=degree, estimate_tie_variance=bool(adj.get("estimate_tie_variance", True)),
         ftol=float(adj.get("ftol", 1e-10)), navigation=nav, qc=qc, html=bool(rep.get("html", True)))
 
 

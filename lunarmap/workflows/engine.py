@@ -1,16 +1,19 @@
 """``lunarmap.workflows.run``: the whole chain of a configuration as one dask graph, resumable, with progress.
 
-The graph (every node a step of :mod:`.steps`, named ``<stage>-<key>``)::
+The graph (every node a task of :mod:`.steps`, named ``<stage>-<key>``)::
 
-    per image      isd -> rpc, isd -> footprint
-    per tile       detect
-    per pair       match  (skipped, and recorded as such, when the footprints overlap too little)
-    block          tiepoints -> adjust (quality control: the tie points' variance factor) -> kernels
+    per image      image: isd -> footprints, rpc, pyramid, interest points (one task, each step stored)
+    pair batches   match  (about one task per image; a pair is skipped, and recorded as such, when its
+                   images overlap too little)
+    block          tiepoints -> adjust (quality control: the tie points' variance factor) -> kernels,
+                   adjusted RFMs (at most 16 tasks)
 
 :func:`run` computes it in two phases: the per-image steps first, then the pairs whose footprints can
 meet (:func:`lunarmap.evaluate.candidate_pairs`, a k-d tree over footprint caps) and the block. A block
-of n images thus has about ``n x neighbours`` match steps rather than ``n (n - 1) / 2``; pairs found
-apart are counted in the summary (``pairs_apart``), not listed.
+of n images thus has about ``n x neighbours`` match steps rather than ``n (n - 1) / 2``, in about n
+tasks; pairs found apart are counted in the summary (``pairs_apart``), not listed. Pixels are read by
+window (:mod:`lunarmap.matching.windowed`) through each image's stored pyramid: no task holds a whole
+image, and a worker's pixel cache is bounded in bytes.
 
 Keys are computed before anything runs, from the inputs' content and the parameters
 (:mod:`.store`), so a rerun skips every finished step and a changed parameter reruns exactly what
@@ -37,16 +40,17 @@ import xarray as xr
 
 from ..errors import ConfigError, WorkflowError
 from .config import RunConfig, load_config
-from .steps import (Done, adjust_step, adjusted_rpc_step, as_dict, detect_step, footprint_step, isd_step, kernels_step, match_step,
-                    provenance, read_pixels, rpc_step, tiepoints_step)
-from .store import Store, file_digest, files_digest, step_key
+from ..errors import LunarmapError
+from .steps import (Done, ImageDone, ImageJob, MatchJob, adjust_step, adjusted_rpc_batch, as_dict, image_steps,
+                    kernels_step, match_batch, provenance, read_pixels, tiepoints_step)
+from .store import Store, file_digest, files_digest, load_digests, save_digests, step_key
 
 __all__ = ["RunResult", "run", "build_graph", "STAGES"]
 
 _log = logging.getLogger(__name__)
 
 #: Stages in graph order.
-STAGES = ("isd", "footprint", "rpc", "detect", "match", "tiepoints", "adjust", "kernels", "rpc_adjusted")
+STAGES = ("image", "match", "tiepoints", "adjust", "kernels", "rpc_adjusted")
 
 
 @dataclass
@@ -99,6 +103,21 @@ class _Graph:
     names: list[str]
     pairs: list[tuple[str, str]]
     apart: int = 0                   # pairs left out because their footprints cannot meet
+    outputs: dict[str, list[Path]] = field(default_factory=dict)   # dask key -> files the task writes
+
+    def computes(self) -> bool:
+        """Whether any task has an output missing from the store (else every task only reads it)."""
+        return any(not p.exists() for paths in self.outputs.values() for p in paths)
+
+
+def _batches(items: list[Any], per_task: int) -> list[list[Any]]:
+    return [items[k:k + per_task] for k in range(0, len(items), per_task)]
+
+
+def _tiepoints(store: Store, key: str, names: list[str], pairs: list[tuple[str, str]],
+               batches: list[list[Done]], track_tol: float, attrs: dict[str, Any]) -> Done:
+    """The tie-point step over the match batches' records (in pair order)."""
+    return tiepoints_step(store, key, names, pairs, [d for b in batches for d in b], track_tol, attrs)
 
 
 def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None,
@@ -114,80 +133,98 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
         values, not tasks; given the footprints among them, only the pairs whose footprints can meet
         get match steps. Without, every pair of images gets one.
     images_only : bool
-        Only the per-image steps (isd, footprint, rpc, detect): the first phase of :func:`run`.
+        Only the per-image tasks (ISD, footprints, RFM, pyramid, interest points): the first phase of
+        :func:`run`.
     """
-    from ..matching import DetectParams, MatchParams, TiePointParams
-    from ..matching.tiepoints import tile_windows
+    from ..io.window import PixelSource
     from ..spice import KernelSet
 
     kset = KernelSet.from_metakernel(cfg.metakernel)
     kset.check_files()
     kernels_digest = files_digest([cfg.metakernel, *kset.paths])
-    params = TiePointParams(detect=DetectParams(cell=cfg.cell), match=MatchParams(search=cfg.search))
+    params = tiepoint_params(cfg)
+    sat = params.match.saturation
     digest = cfg.digest()
     attrs = provenance(digest, kset.paths)
     tasks: dict[str, Any] = {}
     stage_of: dict[str, str] = {}
+    outputs: dict[str, list[Path]] = {}
 
-    def node(stage: str, key: str, fn: Callable[..., Any], *args: Any) -> Any:
+    def node(stage: str, key: str, fn: Callable[..., Any], *args: Any, out: list[Path] = ()) -> Any:
         name = f"{stage}-{key}"
         if done is not None and name in done:
             return done[name]
         if name not in tasks:
             tasks[name] = dask.delayed(fn, pure=False)(*args, dask_key_name=name)
             stage_of[name] = stage
+            outputs[name] = list(out)
         return tasks[name]
 
     names = [im.name for im in cfg.images]
-    isd, rpc, tiles, isd_key, tile_keys, pix, foot = {}, {}, {}, {}, {}, {}, {}
-    halo = params.detect.border + params.detect.window + params.detect.nms
     heights = [float(min(cfg.rpc_height_range)), float(max(cfg.rpc_height_range))]
     if cfg.dtm is not None:
         dtm_values = read_pixels(cfg.dtm).values
         heights = [min(heights[0], float(np.nanmin(dtm_values))), max(heights[1], float(np.nanmax(dtm_values)))]
+    rpc_range = cfg.rpc_height_range if cfg.rpc_enabled else None
+    image: dict[str, Any] = {}
+    isd_key: dict[str, str] = {}
+    pix: dict[str, str] = {}
     for im in cfg.images:
         try:
+            PixelSource(im.pixels)                   # the header only: is it an image at all?
             pix[im.name] = file_digest(im.pixels)
-            shape = tuple(int(v) for v in read_pixels(im.pixels).shape)
-        except (OSError, WorkflowError) as err:
+        except (OSError, LunarmapError) as err:
             raise ConfigError(f"{cfg.source}: image {im.name}: pixels {im.pixels} are not a readable image "
                               f"({err})") from None
         isd_key[im.name] = step_key("isd", None, [file_digest(im.label), kernels_digest])
-        isd[im.name] = node("isd", isd_key[im.name], isd_step, store, isd_key[im.name], im.name, str(im.label),
-                            str(cfg.metakernel))
-        foot[im.name] = node("footprint", isd_key[im.name], footprint_step, isd[im.name], tuple(heights))
-        if cfg.rpc_enabled:
-            k = step_key("rpc", list(cfg.rpc_height_range), [isd_key[im.name]])
-            rpc[im.name] = node("rpc", k, rpc_step, store, k, isd[im.name], cfg.rpc_height_range)
-        tiles[im.name], tile_keys[im.name] = [], []
-        for core, pad in tile_windows(shape, params.detect.tile, halo):   # type: ignore[arg-type]
-            k = step_key("detect", repr(params.detect), [pix[im.name], list(core), list(pad)])
-            tiles[im.name].append(node("detect", k, detect_step, store, k, im.name, str(im.pixels), core, pad,
-                                       params.detect, params.match.saturation))
-            tile_keys[im.name].append(k)
+        job = ImageJob(
+            name=im.name, label=str(im.label), pixels=str(im.pixels), digest=pix[im.name], isd_key=isd_key[im.name],
+            footprint_key=step_key("footprint", heights, [isd_key[im.name]]),
+            rpc_key=step_key("rpc", list(cfg.rpc_height_range), [isd_key[im.name]]) if cfg.rpc_enabled else None,
+            pyramid_key=step_key("pyramid", [params.match.pyramid_levels, sat], [pix[im.name]]),
+            detect_key=step_key("detect", [repr(params.detect), sat], [pix[im.name]]))
+        out = [store.path("isd", job.isd_key, "json"), store.path("footprint", job.footprint_key, "npz"),
+               store.path("pyramid", job.pyramid_key, "nc"), store.path("detect", job.detect_key, "npz")]
+        if job.rpc_key is not None:
+            out.append(store.path("rpc", job.rpc_key, "nc"))
+        image[im.name] = node("image", isd_key[im.name], image_steps, store, job, str(cfg.metakernel),
+                              tuple(heights), rpc_range, params.detect, params.match.pyramid_levels, sat, out=out)
     if images_only:
-        return _Graph(tasks, stage_of, names, [])
+        return _Graph(tasks, stage_of, names, [], outputs=outputs)
     candidates = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
     apart = 0
-    if done is not None and all(isinstance(v, (list, type(None))) for v in foot.values()):
+    if done is not None and all(isinstance(v, ImageDone) for v in image.values()):
         from ..evaluate.footprint import candidate_pairs
 
         n_all = len(candidates)
-        candidates = candidate_pairs(foot)
+        candidates = candidate_pairs({n: image[n].footprints for n in names})
         apart = n_all - len(candidates)
+        rec = {n: {s: image[n].get(s) for s in ("isd", "pyramid", "detect")} for n in names}
+    else:   # a graph built before the images' phase ran (inspection): records are placeholders
+        rec = {n: {s: Done(s, "", n, "", False) for s in ("isd", "pyramid", "detect")} for n in names}
     dtm = str(cfg.dtm) if cfg.dtm is not None else None
     dtm_digest = file_digest(cfg.dtm) if cfg.dtm is not None else ""
-    pairs, matches, match_keys = [], [], []
     spec = {im.name: im for im in cfg.images}
+    jobs, match_keys = [], []
     for a, b in candidates:
-        k = step_key("match", [repr(params.match), repr(params.ransac), cfg.min_overlap],
-                     [pix[a], pix[b], isd_key[a], isd_key[b], dtm_digest, *tile_keys[a]])
-        matches.append(node("match", k, match_step, store, k, (a, b), (str(spec[a].pixels), str(spec[b].pixels)),
-                            (isd[a], isd[b]), tiles[a], dtm, params, cfg.min_overlap))
-        pairs.append((a, b))
+        k = step_key("match", [repr(params.match), repr(params.ransac), cfg.min_overlap, params.max_points],
+                     [pix[a], pix[b], isd_key[a], isd_key[b], dtm_digest, rec[a]["detect"].key])
+        jobs.append(MatchJob(k, (a, b), (str(spec[a].pixels), str(spec[b].pixels)),
+                             (rec[a]["isd"], rec[b]["isd"]), (rec[a]["pyramid"], rec[b]["pyramid"]),
+                             rec[a]["detect"]))
         match_keys.append(k)
-    k_tie = step_key("tiepoints", params.track_tol, match_keys)
-    ties = node("tiepoints", k_tie, tiepoints_step, store, k_tie, names, pairs, matches, params.track_tol, attrs)
+    # about one match task per image: the graph of 10,000 images stays at ~20,000 tasks
+    per_task = max(1, -(-len(jobs) // max(1, len(names))))
+    batches = []
+    for group in _batches(jobs, per_task):
+        bk = step_key("match_batch", None, [j.key for j in group])
+        batches.append(node("match", bk, match_batch, store, group, dtm, params, cfg.min_overlap,
+                            out=[store.path("match", j.key, "npz") for j in group]))
+    pairs = [j.pair for j in jobs]
+    # the table names its images: a renamed image is another table
+    k_tie = step_key("tiepoints", [params.track_tol, names], match_keys)
+    ties = node("tiepoints", k_tie, _tiepoints, store, k_tie, names, pairs, batches, params.track_tol, attrs,
+                out=[store.path("tiepoints", k_tie, "nc")])
     nav = None
     if cfg.navigation is not None:
         n = cfg.navigation
@@ -202,16 +239,28 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
     k_adj = step_key("adjust", [cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, groups, names]
                      + ([qc] if qc is not None else []),
                      [isd_key[n] for n in names] + [k_tie, file_digest(cfg.points) if points else ""])
-    adj = node("adjust", k_adj, adjust_step, store, k_adj, names, groups, [isd[n] for n in names], ties, points,
-               cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, attrs, qc)
+    adj = node("adjust", k_adj, adjust_step, store, k_adj, names, groups, [rec[n]["isd"] for n in names], ties,
+               points, cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, attrs, qc,
+               out=[store.path("adjust", k_adj)])
     k_ker = step_key("kernels", None, [k_adj, kernels_digest])
-    ker = node("kernels", k_ker, kernels_step, store, k_ker, names, adj, [isd[n] for n in names],
-               str(cfg.metakernel))
+    node("kernels", k_ker, kernels_step, store, k_ker, names, adj, [rec[n]["isd"] for n in names],
+         str(cfg.metakernel), out=[store.path("kernels", k_ker) / "adjusted.tm"])
     if cfg.rpc_enabled:
-        for n in names:
-            k = step_key("rpc_adjusted", [list(cfg.rpc_height_range), n], [k_adj])
-            node("rpc_adjusted", k, adjusted_rpc_step, store, k, n, adj, cfg.rpc_height_range)
-    return _Graph(tasks, stage_of, names, pairs, apart)
+        rjobs = [(step_key("rpc_adjusted", [list(cfg.rpc_height_range), n], [k_adj]), n) for n in names]
+        per = max(1, -(-len(rjobs) // 16))
+        for group in _batches(rjobs, per):
+            node("rpc_adjusted", step_key("rpc_adjusted_batch", None, [k for k, _ in group]), adjusted_rpc_batch,
+                 store, group, adj, cfg.rpc_height_range,
+                 out=[store.path("rpc_adjusted", k, "nc") for k, _ in group])
+    return _Graph(tasks, stage_of, names, pairs, apart, outputs)
+
+
+def tiepoint_params(cfg: RunConfig) -> Any:
+    """The tie-point chain's settings of a run configuration."""
+    from ..matching import DetectParams, MatchParams, TiePointParams
+
+    return TiePointParams(detect=DetectParams(cell=cfg.cell), match=MatchParams(search=cfg.search),
+                          max_points=cfg.max_points)
 
 
 class _Progress:
@@ -242,6 +291,10 @@ class _Progress:
         self.done[stage] += 1
         if isinstance(result, Done):
             self.records.append(result)
+        elif isinstance(result, ImageDone):
+            self.records.extend(result.records)
+        elif isinstance(result, list):
+            self.records.extend(d for d in result if isinstance(d, Done))
         now = time.perf_counter() - self.start
         if self.done[stage] == self.total[stage]:
             self.stage_seconds[stage] = now
@@ -361,24 +414,35 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
     if root.level == logging.NOTSET or root.level > logging.INFO:
         root.setLevel(logging.INFO)
     client = cluster = None
+    digests = store.root / "digests.json"
+    load_digests(digests)
     try:
         first = build_graph(cfg, store, images_only=True)
-        _log.info("run %s: %d images, %d per-image steps -> %s", cfg.name or cfg.source, len(first.names),
+        _log.info("run %s: %d images, %d per-image tasks -> %s", cfg.name or cfg.source, len(first.names),
                   len(first.tasks), cfg.output)
         progress = _Progress(first.stage_of)
-        sched: Any = scheduler
-        if scheduler is None or (isinstance(scheduler, str) and scheduler not in ("sync", "threads",
-                                                                                   "synchronous", "processes")):
-            client, cluster = _client(scheduler, workers, cfg)
-            sched = client
-            _log.info("dask dashboard: %s", client.dashboard_link)
-        done = _execute(first, sched, progress)
+        local = scheduler in ("sync", "threads", "synchronous", "processes")
+
+        def scheduler_for(graph: _Graph) -> Any:
+            # a phase whose every output is stored only reads the store: no cluster is started for it
+            nonlocal client, cluster
+            if not graph.computes() and not hasattr(scheduler, "submit"):
+                return "sync"
+            if scheduler is None or (isinstance(scheduler, str) and not local):
+                if client is None:
+                    client, cluster = _client(scheduler, workers, cfg)
+                    _log.info("dask dashboard: %s", client.dashboard_link)
+                return client
+            return scheduler
+
+        done = _execute(first, scheduler_for(first), progress)
         graph = build_graph(cfg, store, done=done)
         n_all = len(graph.names) * (len(graph.names) - 1) // 2
-        _log.info("pairs: %d of %d whose footprints can meet; %d block steps", len(graph.pairs), n_all,
+        _log.info("pairs: %d of %d whose footprints can meet; %d block tasks", len(graph.pairs), n_all,
                   len(graph.tasks))
         progress.add(graph.stage_of)
-        _execute(graph, sched, progress)
+        _execute(graph, scheduler_for(graph), progress)
+        save_digests(digests)
         files, summary = _export(cfg, graph, progress.records)
         result = RunResult(cfg, cfg.output, summary, files, progress.records, progress.stage_seconds)
         if cfg.html if report is None else report:

@@ -24,8 +24,9 @@ from ..camera.geodesy import MOON_GEOGRAPHIC_CRS
 from ..errors import LunarmapError, WorkflowError
 from .store import Store
 
-__all__ = ["Done", "isd_step", "rpc_step", "detect_step", "footprint_step", "match_step", "tiepoints_step", "adjust_step",
-           "kernels_step", "read_pixels", "provenance"]
+__all__ = ["Done", "ImageJob", "ImageDone", "MatchJob", "image_steps", "isd_step", "rpc_step", "pyramid_step",
+           "detect_step", "footprint_step", "match_batch", "match_step", "tiepoints_step", "adjust_step",
+           "kernels_step", "adjusted_rpc_batch", "read_pixels", "provenance"]
 
 
 @dataclass(frozen=True)
@@ -86,11 +87,10 @@ def _stamp(path: str | Path) -> tuple[str, int, int]:
 
 
 def read_pixels(path: str | Path) -> xr.DataArray:
-    """Image pixels as a ``(line, sample)`` DataArray: netCDF (xarray, e.g. :func:`lunarmap.simulate.render_block`),
-    ISIS cube, PDS3 image or GeoTIFF (:func:`lunarmap.io.raster.open_image`; special pixels are NaN).
+    """A whole raster as a ``(line, sample)`` DataArray, in memory: for the run's DTM (heights of the
+    tie-point prediction), never for images (they are read by window: :func:`_windowed`).
 
-    Read once per process (cached by path, size and modification time: a worker that matches an image
-    in many pairs reads it once).
+    Read once per process (cached by path, size and modification time; at most 4 files).
 
     Raises
     ------
@@ -100,7 +100,7 @@ def read_pixels(path: str | Path) -> xr.DataArray:
     return _read_pixels(*_stamp(path))
 
 
-@functools.lru_cache(maxsize=64)
+@functools.lru_cache(maxsize=4)
 def _read_pixels(path: str, size: int, mtime: int) -> xr.DataArray:
     p = Path(path)
     try:
@@ -194,25 +194,84 @@ def adjusted_rpc_step(store: Store, key: str, name: str, adjusted: Done, height_
                 note=f"check RMS {fit.check.rms:.2e} px")
 
 
+def _tiles_by_row(shape: tuple[int, int], tile: int, halo: int) -> list[list[tuple[tuple[int, int, int, int],
+                                                                               tuple[int, int, int, int]]]]:
+    """The image's detection tiles, grouped by row of tiles (one stripe read serves a row)."""
+    from ..matching.tiepoints import tile_windows
+
+    rows: dict[int, list[Any]] = {}
+    for core, pad in tile_windows(shape, tile, halo):
+        rows.setdefault(core[0], []).append((core, pad))
+    return list(rows.values())
+
+
+def adjusted_rpc_batch(store: Store, jobs: Sequence[tuple[str, str]], adjusted: Done,
+                       height_range: tuple[float, float]) -> list[Done]:
+    """:func:`adjusted_rpc_step` of several images ``(key, name)`` in one task."""
+    return [adjusted_rpc_step(store, k, n, adjusted, height_range) for k, n in jobs]
+
+
 @_one_blas_thread
-def detect_step(store: Store, key: str, name: str, pixels: str, core: tuple[int, int, int, int],
-                padded: tuple[int, int, int, int], params: Any, saturation: float | None) -> Done:
-    """Förstner interest points of one tile (``.npz``)."""
+def detect_step(store: Store, key: str, name: str, pixels: str, params: Any, saturation: float | None) -> Done:
+    """Förstner interest points of a whole image, tile by tile (``.npz``).
+
+    The image is read a stripe of one row of tiles (plus the halo) at a time, so memory does not grow
+    with the image's length; the points are those of :func:`~lunarmap.matching.tiepoints.detect_tile`
+    on each tile's padded window.
+    """
     t = time.perf_counter()
-    item = f"{name} tile {core[0]}:{core[1]},{core[2]}:{core[3]}"
     if store.has("detect", key, "npz"):
-        return Done("detect", key, item, str(store.path("detect", key, "npz")), False)
+        return Done("detect", key, name, str(store.path("detect", key, "npz")), False)
     import warnings
 
-    from ..matching.tiepoints import detect_tile
+    from ..matching.tiepoints import detect_tile, merge_points
 
-    window = read_pixels(pixels).values[padded[0]:padded[1], padded[2]:padded[3]]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")          # blank tiles are expected at rolled images' edges
-        pts = detect_tile(window, core, padded, params, saturation, name)
+    src = _source(pixels)
+    halo = params.border + params.window + params.nms
+    parts = []
+    try:
+        for row in _tiles_by_row(src.shape, params.tile, halo):
+            p0, p1 = row[0][1][0], row[0][1][1]
+            stripe = src.read(p0, p1, 0, src.shape[1])
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")          # blank tiles are expected at rolled images' edges
+                for core, pad in row:
+                    parts.append(detect_tile(stripe[:, pad[2]:pad[3]], core, pad, params, saturation, name))
+    except LunarmapError as err:
+        raise _fail("detect", name, err) from None
+    pts = merge_points(parts)
     path = store.write("detect", key, "npz", lambda tmp: _savez(tmp, line=pts.line, sample=pts.sample,
                                                                   strength=pts.strength))
-    return Done("detect", key, item, str(path), True, time.perf_counter() - t)
+    return Done("detect", key, name, str(path), True, time.perf_counter() - t, note=f"{pts.line.size} points")
+
+
+@_one_blas_thread
+def pyramid_step(store: Store, key: str, name: str, pixels: str, levels: int, saturation: float | None,
+                 digest: str) -> Done:
+    """An image's pyramid levels, computed once and stored chunked (:func:`lunarmap.io.pyramid.write_pyramid`)."""
+    t = time.perf_counter()
+    if store.has("pyramid", key, "nc"):
+        from ..errors import PyramidError
+        from ..io.pyramid import Pyramid
+
+        path = store.path("pyramid", key, "nc")
+        try:
+            Pyramid(path, digest=digest)
+            return Done("pyramid", key, name, str(path), False)
+        except PyramidError as err:
+            import logging
+
+            logging.getLogger(__name__).warning("%s: recomputing the pyramid: %s", name, err)
+            path.unlink(missing_ok=True)
+    from ..io.pyramid import write_pyramid
+
+    final = store.path("pyramid", key, "nc")
+    final.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        path = write_pyramid(_source(pixels), final, levels, saturation, digest=digest)
+    except LunarmapError as err:
+        raise _fail("pyramid", name, err) from None
+    return Done("pyramid", key, name, str(path), True, time.perf_counter() - t)
 
 
 def _savez(path: Path, **arrays: Any) -> None:
@@ -220,15 +279,41 @@ def _savez(path: Path, **arrays: Any) -> None:
         np.savez(fh, **arrays)
 
 
-def _load_points(tiles: Sequence[Done]) -> Any:
+def _load_points(detect: Done) -> Any:
     from ..matching.interest import InterestPoints
-    from ..matching.tiepoints import merge_points
 
-    parts = []
-    for d in tiles:
-        with np.load(d.path) as z:
-            parts.append(InterestPoints(z["line"], z["sample"], z["strength"]))
-    return merge_points(parts)
+    with np.load(detect.path) as z:
+        return InterestPoints(z["line"], z["sample"], z["strength"])
+
+
+def _source(pixels: str) -> Any:
+    """The window source of an image file (cached per process by path, size and modification time)."""
+    return _source_of(*_stamp(pixels))
+
+
+@functools.lru_cache(maxsize=256)
+def _source_of(path: str, size: int, mtime: int) -> Any:
+    from ..io.window import PixelSource
+
+    try:
+        return PixelSource(path)
+    except LunarmapError as err:
+        raise WorkflowError(f"image {path} is not readable: {err}") from None
+
+
+def _windowed(pixels: str, saturation: float | None, pyramid: Done | None) -> Any:
+    """The image as the matcher reads it: by window, with its stored pyramid (cached per process; the
+    cached objects hold no pixels, the region cache of :mod:`lunarmap.matching.windowed` is bounded in bytes)."""
+    return _windowed_of(*_stamp(pixels), saturation, pyramid.path if pyramid is not None else None)
+
+
+@functools.lru_cache(maxsize=64)
+def _windowed_of(path: str, size: int, mtime: int, saturation: float | None, pyramid: str | None) -> Any:
+    from ..io.pyramid import Pyramid
+    from ..matching.windowed import WindowedImage
+
+    src = _source_of(path, size, mtime)
+    return WindowedImage(src, saturation, pyramid=Pyramid(pyramid, shape=src.shape) if pyramid else None)
 
 
 def _overlap(cam_a: Any, cam_b: Any, height: float) -> float:
@@ -243,23 +328,100 @@ def _overlap(cam_a: Any, cam_b: Any, height: float) -> float:
     return float(np.count_nonzero(np.isfinite(li) & np.isfinite(sa))) / L.size
 
 
-def footprint_step(isd: Done, heights: tuple[float, ...]) -> list[Any] | None:
+def footprint_step(store: Store, key: str, isd: Done, heights: tuple[float, ...]) -> list[Any] | None:
     """An image's footprints at the given heights (metres), for choosing the pairs to match; ``None`` when
-    its border misses the Moon (the image is then paired with every other)."""
+    its border misses the Moon (the image is then paired with every other). Stored (``.npz``), so a rerun
+    does not rebuild the camera."""
     from ..errors import NoOverlapError
-    from ..evaluate.footprint import footprint
+    from ..evaluate.footprint import Footprint, footprint
 
+    if store.has("footprint", key, "npz"):
+        with np.load(store.path("footprint", key, "npz")) as z:
+            if not bool(z["seen"]):
+                return None
+            return [Footprint(np.array(z["xyz"][k]), float(z["radius"][k]), float(z["height"][k]))
+                    for k in range(z["xyz"].shape[0])]
     cam = _camera(isd)
     try:
-        return [footprint(cam, height=float(h), per_side=8, name=isd.item) for h in heights]
+        feet: list[Any] | None = [footprint(cam, height=float(h), per_side=8, name=isd.item) for h in heights]
     except NoOverlapError:
-        return None
+        feet = None
+    arrays = ({"seen": np.array(False)} if feet is None else
+              {"seen": np.array(True), "xyz": np.stack([f.xyz for f in feet]),
+               "radius": np.array([f.radius for f in feet]), "height": np.array([f.height for f in feet])})
+    store.write("footprint", key, "npz", lambda tmp: _savez(tmp, **arrays))
+    return feet
+
+
+@dataclass(frozen=True)
+class ImageJob:
+    """Everything the per-image steps of one image need (keys computed by the engine)."""
+
+    name: str
+    label: str
+    pixels: str
+    digest: str
+    isd_key: str
+    footprint_key: str
+    rpc_key: str | None
+    pyramid_key: str
+    detect_key: str
+
+
+@dataclass
+class ImageDone:
+    """The per-image steps' records and the image's footprints."""
+
+    records: list[Done]
+    footprints: list[Any] | None
+
+    def get(self, step: str) -> Done | None:
+        return next((d for d in self.records if d.step == step), None)
+
+
+def image_steps(store: Store, job: ImageJob, metakernel: str, heights: tuple[float, ...],
+                rpc_height_range: tuple[float, float] | None, detect: Any, pyramid_levels: int,
+                saturation: float | None) -> ImageDone:
+    """One task per image: its ISD, footprints, RFM, pyramid and interest points, each stored under its own
+    key (a rerun or a resumed run computes only the missing ones)."""
+    isd = isd_step(store, job.isd_key, job.name, job.label, metakernel)
+    feet = footprint_step(store, job.footprint_key, isd, heights)
+    records = [isd]
+    if job.rpc_key is not None and rpc_height_range is not None:
+        records.append(rpc_step(store, job.rpc_key, isd, rpc_height_range))
+    records.append(pyramid_step(store, job.pyramid_key, job.name, job.pixels, pyramid_levels, saturation, job.digest))
+    records.append(detect_step(store, job.detect_key, job.name, job.pixels, detect, saturation))
+    return ImageDone(records, feet)
+
+
+@dataclass(frozen=True)
+class MatchJob:
+    """One pair of a match batch: its key, names, pixel files and the upstream records it reads."""
+
+    key: str
+    pair: tuple[str, str]
+    pixels: tuple[str, str]
+    isds: tuple[Done, Done]
+    pyramids: tuple[Done, Done]
+    points: Done
+
+
+def match_batch(store: Store, jobs: Sequence[MatchJob], dtm: str | None, params: Any,
+                min_overlap: float) -> list[Done]:
+    """Several pairs in one task (the graph stays small: about one match task per image)."""
+    return [match_step(store, j.key, j.pair, j.pixels, j.isds, j.pyramids, j.points, dtm, params, min_overlap)
+            for j in jobs]
 
 
 @_one_blas_thread
 def match_step(store: Store, key: str, pair: tuple[str, str], pixels: tuple[str, str], isds: tuple[Done, Done],
-               tiles: Sequence[Done], dtm: str | None, params: Any, min_overlap: float) -> Done:
-    """Matches of one image pair (prediction, pyramid NCC, LSM, RANSAC), or a skip when they do not overlap."""
+               pyramids: tuple[Done | None, Done | None], points: Done, dtm: str | None, params: Any,
+               min_overlap: float) -> Done:
+    """Matches of one image pair (prediction, pyramid NCC, LSM, RANSAC), or a skip when they do not overlap.
+
+    Both images are read by window through their stored pyramids (:mod:`lunarmap.matching.windowed`):
+    never a whole image in memory.
+    """
     t = time.perf_counter()
     item = f"{pair[0]} -> {pair[1]}"
     if store.has("match", key, "npz"):
@@ -269,7 +431,6 @@ def match_step(store: Store, key: str, pair: tuple[str, str], pixels: tuple[str,
         return Done("match", key, item, str(path), False, note=note)
     import warnings
 
-    from ..matching.pairs import as_array
     from ..matching.tiepoints import match_pair
 
     cam_a, cam_b = _camera(isds[0]), _camera(isds[1])
@@ -283,17 +444,18 @@ def match_step(store: Store, key: str, pair: tuple[str, str], pixels: tuple[str,
         path = store.write("match", key, "npz", lambda tmp: _savez(tmp, note=np.array(note), n=np.array(0)))
         return Done("match", key, item, str(path), True, time.perf_counter() - t, note)
     sat = params.match.saturation
-    img_a = as_array(read_pixels(pixels[0]), pair[0], sat)
-    img_b = as_array(read_pixels(pixels[1]), pair[1], sat)
-    points = _load_points(tiles)
     try:
+        img_a = _windowed(pixels[0], sat, pyramids[0])
+        img_b = _windowed(pixels[1], sat, pyramids[1])
+        pts = _load_points(points)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            m = match_pair(img_a, img_b, cam_a, cam_b, points, height, params, item)
+            m = match_pair(img_a, img_b, cam_a, cam_b, pts, height, params, item)
     except LunarmapError as err:
         raise _fail("match", item, err) from None
     ok = m.ok
-    note = f"{int(ok.sum())}/{ok.size} matched ({frac:.0%} overlap)"
+    thinned = f", thinned from {ok.size}" if m.meta.get("thinned") else ""
+    note = f"{int(ok.sum())}/{ok.size - int(m.meta.get('thinned', 0))} matched ({frac:.0%} overlap{thinned})"
     arrays = {"line1": m.line1[ok], "sample1": m.sample1[ok], "line2": m.line2[ok], "sample2": m.sample2[ok],
               "sigma_line": m.sigma_line[ok], "sigma_sample": m.sigma_sample[ok],
               "correlation": m.correlation[ok], "index": np.flatnonzero(ok), "n_points": np.array(ok.size),
@@ -305,37 +467,26 @@ def match_step(store: Store, key: str, pair: tuple[str, str], pixels: tuple[str,
 @_one_blas_thread
 def tiepoints_step(store: Store, key: str, names: Sequence[str], pairs: Sequence[tuple[str, str]],
                    matches: Sequence[Done], track_tol: float, attrs: dict[str, Any]) -> Done:
-    """Multi-image tracks of all pairs' matches: the tie-point table (netCDF)."""
+    """Multi-image tracks of all pairs' matches: the tie-point table (netCDF).
+
+    Pairs are read one at a time and only their matched rows are kept (:class:`~lunarmap.matching.tiepoints.TrackRows`).
+    """
     t = time.perf_counter()
     if store.has("tiepoints", key, "nc"):
         return Done("tiepoints", key, "", str(store.path("tiepoints", key, "nc")), False)
-    from ..matching.pairs import STATUS, PairMatches
-    from ..matching.predict import Prediction
-    from ..matching.tiepoints import assemble_tiepoints, write_tiepoints
+    from ..matching.tiepoints import TrackRows, write_tiepoints
 
     index = {n: k for k, n in enumerate(names)}
-    results = []
+    rows = TrackRows()
     for (a, b), d in zip(pairs, matches):
         with np.load(d.path) as z:
             if int(z["n"]) == 0:
                 continue
-            n_pts = int(z["n_points"])
-            full = {k: np.full(n_pts, np.nan) for k in ("line1", "sample1", "line2", "sample2", "sigma_line",
-                                                         "sigma_sample", "correlation")}
-            idx = z["index"]
-            for k in full:
-                full[k][idx] = z[k]
-            status = np.full(n_pts, STATUS["ncc_failed"], dtype=np.int8)
-            status[idx] = STATUS["ok"]
-        nan = np.full(n_pts, np.nan)
-        pred = Prediction(nan, nan, np.full((n_pts, 2, 2), np.nan), np.full((n_pts, 2), np.nan), nan)
-        m = PairMatches(full["line1"], full["sample1"], full["line2"], full["sample2"], full["sigma_line"],
-                        full["sigma_sample"], full["correlation"], status, pred,
-                        {"n_points": n_pts, "n_ok": int(idx.size)})
-        results.append((index[a], index[b], m))
-    if not results:
+            rows.add(index[a], index[b], z["index"], z["line1"], z["sample1"], z["line2"], z["sample2"],
+                     z["sigma_line"], z["sigma_sample"], z["correlation"], n_points=int(z["n_points"]))
+    if not rows.n_pairs:
         raise WorkflowError("tie points: no image pair overlaps (every pair was skipped or matched nothing)")
-    ds = assemble_tiepoints(results, list(names), track_tol)
+    ds = rows.table(list(names), track_tol)
     ds.attrs.update(attrs)
     path = store.write("tiepoints", key, "nc", lambda tmp: write_tiepoints(ds, tmp))
     return Done("tiepoints", key, "", str(path), True, time.perf_counter() - t,

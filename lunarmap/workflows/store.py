@@ -23,9 +23,35 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-__all__ = ["Store", "file_digest", "files_digest", "step_key"]
+__all__ = ["Store", "file_digest", "files_digest", "step_key", "load_digests", "save_digests"]
 
 _DIGESTS: dict[tuple[str, int, int], str] = {}
+
+
+def load_digests(path: str | os.PathLike[str]) -> int:
+    """Remember the content digests a previous run of this folder computed (``digests.json``).
+
+    An entry is used only for a file of the same path, size and modification time (nanoseconds), as
+    ``make`` trusts a file's time: a rerun does not read gigabytes of images again to learn that they
+    did not change. Returns the number of entries read; an unreadable file is ignored (the digests are
+    recomputed).
+    """
+    try:
+        rows = json.loads(Path(path).read_text())
+        for p, size, mtime, digest in rows:
+            _DIGESTS[(str(p), int(size), int(mtime))] = str(digest)
+        return len(rows)
+    except (OSError, ValueError, TypeError):
+        return 0
+
+
+def save_digests(path: str | os.PathLike[str]) -> None:
+    """Write the digests of every file this process has hashed, atomically (see :func:`load_digests`)."""
+    from ..atomic import atomic_write
+
+    rows = [[p, size, mtime, d] for (p, size, mtime), d in sorted(_DIGESTS.items())]
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(rows)))
 
 
 def file_digest(path: str | os.PathLike[str]) -> str:

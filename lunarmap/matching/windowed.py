@@ -1,0 +1,315 @@
+"""Images the matcher samples anywhere but reads only by window: pixels of images of any size.
+
+A :class:`WindowedImage` stands where the matcher used to take a whole image in memory: the
+resamplers (:func:`~lunarmap.matching.resample.bilinear`, :func:`~lunarmap.matching.resample.bicubic`,
+:func:`~lunarmap.matching.resample.bicubic_with_gradient`) ask it for the smallest region holding
+every stencil of a call (:meth:`WindowedImage.region`), sample that region, and give exactly what
+they give on the whole image (the region's edges are the image's wherever the image ends, and
+interior edges lie beyond every stencil, so even the clamps and the NaN propagation are the same).
+Invalid and saturated pixels become NaN as :func:`~lunarmap.matching.pairs.as_array` makes them;
+least-squares matching's Gaussian pre-smoothing (:meth:`WindowedImage.smoothed`) is computed on
+each region with an apron of the filter's radius, so the smoothed values are those of the
+smoothed whole image. Pyramid levels come from a stored :class:`~lunarmap.io.pyramid.Pyramid`
+or, without one, are block means of level-0 regions (the same values).
+
+Regions are kept in one least-recently-used cache per process, bounded in bytes
+(:data:`CACHE_BYTES`, settable with :func:`set_cache_bytes`): a worker that matches many pairs of
+many full-size images holds at most that much pixel data, whatever the images' size or number.
+"""
+
+from __future__ import annotations
+
+import itertools
+import threading
+from collections import OrderedDict
+from typing import Any, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import InvalidInputError
+from ..io.pyramid import Pyramid, pyramid_shapes
+from ..io.window import WindowSource, open_source
+
+__all__ = ["WindowedImage", "windowed_pyramid", "CACHE_BYTES", "set_cache_bytes", "cache_info", "spatial_order"]
+
+Array = NDArray[np.float64]
+
+#: Bytes of pixel regions a process keeps (all images, levels and smoothings together).
+CACHE_BYTES = 256 << 20
+#: Extra pixels read around a region, so the next, slightly moved request (an LSM iteration) hits.
+_PAD = 16
+_TRUNCATE = 4.0          # scipy.ndimage.gaussian_filter's default
+
+
+class _RegionCache:
+    """Least-recently-used regions of every windowed image of the process, bounded in bytes."""
+
+    def __init__(self, max_bytes: int) -> None:
+        self.max_bytes = int(max_bytes)
+        self.entries: OrderedDict[tuple[int, int, int, int, int], Array] = OrderedDict()
+        self.by_owner: dict[int, list[tuple[int, int, int, int, int]]] = {}
+        self.nbytes = 0
+        self.hits = self.misses = 0
+        self.lock = threading.Lock()
+
+    def find(self, owner: int, l0: int, l1: int, s0: int, s1: int) -> tuple[tuple[int, int, int, int], Array] | None:
+        with self.lock:
+            for key in self.by_owner.get(owner, ()):
+                _, a0, a1, b0, b1 = key
+                if a0 <= l0 and l1 <= a1 and b0 <= s0 and s1 <= b1:
+                    self.entries.move_to_end(key)
+                    self.hits += 1
+                    return (a0, a1, b0, b1), self.entries[key]
+            self.misses += 1
+            return None
+
+    def put(self, owner: int, bounds: tuple[int, int, int, int], data: Array) -> None:
+        key = (owner, *bounds)
+        with self.lock:
+            if key in self.entries:
+                return
+            self.entries[key] = data
+            self.by_owner.setdefault(owner, []).append(key)
+            self.nbytes += data.nbytes
+            while self.nbytes > self.max_bytes and len(self.entries) > 1:
+                old, arr = self.entries.popitem(last=False)
+                self.by_owner[old[0]].remove(old)
+                if not self.by_owner[old[0]]:
+                    del self.by_owner[old[0]]
+                self.nbytes -= arr.nbytes
+
+    def drop(self, owner: int) -> None:
+        with self.lock:
+            for key in self.by_owner.pop(owner, []):
+                self.nbytes -= self.entries.pop(key).nbytes
+
+
+_CACHE = _RegionCache(CACHE_BYTES)
+_OWNER = itertools.count(1)
+
+
+def set_cache_bytes(n: int) -> None:
+    """Bound the process's region cache (bytes; 0 disables caching)."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+        raise InvalidInputError(f"cache size must be an integer >= 0 bytes, got {n!r}")
+    with _CACHE.lock:
+        _CACHE.max_bytes = int(n)
+    if n == 0:
+        for owner in list(_CACHE.by_owner):
+            _CACHE.drop(owner)
+
+
+def cache_info() -> dict[str, int]:
+    """The region cache's ``bytes``, ``max_bytes``, ``regions``, ``hits`` and ``misses``."""
+    with _CACHE.lock:
+        return {"bytes": _CACHE.nbytes, "max_bytes": _CACHE.max_bytes, "regions": len(_CACHE.entries),
+                "hits": _CACHE.hits, "misses": _CACHE.misses}
+
+
+class WindowedImage:
+    """One level of an image, sampled by the resamplers through regions read by window (module docstring).
+
+    Parameters
+    ----------
+    source : WindowSource, path-like or array_like
+        The level's pixels (:func:`lunarmap.io.window.open_source`).
+    saturation : float, optional
+        Grey level from which pixels are invalid (NaN), as in :func:`~lunarmap.matching.pairs.as_array`;
+        applied to level 0 only (stored and derived pyramid levels are made from masked pixels).
+    smooth : float
+        Sigma (pixels) of the Gaussian pre-smoothing of least-squares matching; 0 for raw pixels.
+    pyramid : Pyramid, optional
+        Stored pyramid levels of this image (level 0 only).
+    factor : int
+        Level of this image in its pyramid (``2^level`` image pixels per pixel); internal.
+    """
+
+    def __init__(self, source: Any, saturation: float | None = None, smooth: float = 0.0,
+                 pyramid: Pyramid | None = None, *, _base: "WindowedImage | None" = None, _level: int = 0) -> None:
+        self.source: WindowSource = open_source(source)
+        self.shape = tuple(int(v) for v in self.source.shape)
+        self.name = getattr(self.source, "name", "image")
+        self.saturation = saturation
+        self.smooth = float(smooth)
+        if not (np.isfinite(self.smooth) and self.smooth >= 0.0):
+            raise InvalidInputError(f"smoothing sigma must be >= 0 pixels, got {smooth}")
+        self.stored = pyramid
+        self._base = _base                # derived level: block means of the base image's regions
+        self._level = int(_level)
+        self._owner = next(_OWNER)
+        self.ndim = 2
+
+    # -- what the resamplers call ------------------------------------------------------------
+    def region(self, l0: int, l1: int, s0: int, s1: int) -> Array:
+        """Pixels ``[l0, l1) x [s0, s1)`` (inside the image), invalid ones NaN, smoothed if so made.
+
+        A view into a cached region: do not write into it.
+        """
+        h, w = self.shape
+        if not (0 <= l0 < l1 <= h and 0 <= s0 < s1 <= w):
+            raise InvalidInputError(f"{self.name}: region lines [{l0}, {l1}) samples [{s0}, {s1}) is outside the "
+                                    f"{h} x {w} image")
+        hit = _CACHE.find(self._owner, l0, l1, s0, s1) if _CACHE.max_bytes else None
+        if hit is None:
+            bounds = (max(l0 - _PAD, 0), min(l1 + _PAD, h), max(s0 - _PAD, 0), min(s1 + _PAD, w))
+            data = self._compute(*bounds)
+            data.setflags(write=False)
+            if _CACHE.max_bytes:
+                _CACHE.put(self._owner, bounds, data)
+        else:
+            bounds, data = hit
+        a0, _, b0, _ = bounds
+        return data[l0 - a0:l1 - a0, s0 - b0:s1 - b0]
+
+    def _compute(self, l0: int, l1: int, s0: int, s1: int) -> Array:
+        if self.smooth <= 0.0:
+            return self._raw(l0, l1, s0, s1)
+        # smoothed values of the whole image: the filter's reach around the region, cut off after
+        r = int(_TRUNCATE * self.smooth + 0.5)
+        h, w = self.shape
+        a0, a1, b0, b1 = max(l0 - r, 0), min(l1 + r, h), max(s0 - r, 0), min(s1 + r, w)
+        from .lsm import _smooth
+
+        sm = _smooth(self._raw(a0, a1, b0, b1), self.smooth)
+        return np.ascontiguousarray(sm[l0 - a0:l1 - a0, s0 - b0:s1 - b0])
+
+    def _raw(self, l0: int, l1: int, s0: int, s1: int) -> Array:
+        if self._base is not None:
+            return self._derived(l0, l1, s0, s1)
+        a = self.source.read(l0, l1, s0, s1)
+        if self._level == 0:
+            bad = ~np.isfinite(a)
+            if self.saturation is not None:
+                with np.errstate(invalid="ignore"):
+                    bad |= a >= self.saturation
+            if bad.any():
+                a[bad] = np.nan
+        return a
+
+    def _derived(self, l0: int, l1: int, s0: int, s1: int) -> Array:
+        """Level-k pixels as block means of the base image's aligned ``2^k`` blocks (build_pyramid's values)."""
+        f = 2 ** self._level
+        a = self._base._raw(l0 * f, l1 * f, s0 * f, s1 * f)  # type: ignore[union-attr]
+        for _ in range(self._level):
+            a = 0.25 * (a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2])
+        return a
+
+    # -- derived images ----------------------------------------------------------------------
+    def smoothed(self, sigma: float) -> "WindowedImage":
+        """The same image smoothed by a Gaussian of ``sigma`` pixels (NaN-aware, as least-squares matching's)."""
+        if sigma == self.smooth:
+            return self
+        return WindowedImage(self.source, self.saturation, sigma, self.stored, _base=self._base, _level=self._level)
+
+    def pyramid(self, levels: int) -> list["WindowedImage"]:
+        """``[level 0 (this image), level 1, ...]``, at most ``levels`` reductions (``build_pyramid``'s rule)."""
+        if self._level != 0:
+            raise InvalidInputError("pyramid() is asked of level 0")
+        out = [self]
+        shapes = pyramid_shapes(self.shape, levels)
+        for k, (h, w) in enumerate(shapes, start=1):
+            if self.stored is not None and k <= self.stored.levels:
+                lev = WindowedImage(self.stored.level(k), None, 0.0, _level=k)
+            else:
+                lev = WindowedImage(_Shape((h, w), f"{self.name} level {k}"), None, 0.0, _base=self, _level=k)
+            out.append(lev)
+        return out
+
+    def __del__(self) -> None:
+        try:
+            _CACHE.drop(self._owner)
+        except Exception:  # pragma: no cover - interpreter shutdown
+            pass
+
+    # pickling: the source and settings, not the cache
+    def __getstate__(self) -> dict[str, Any]:
+        return {"source": self.source, "saturation": self.saturation, "smooth": self.smooth, "stored": self.stored,
+                "base": self._base, "level": self._level}
+
+    def __setstate__(self, st: dict[str, Any]) -> None:
+        self.__init__(st["source"], st["saturation"], st["smooth"], st["stored"], _base=st["base"],  # type: ignore[misc]
+                      _level=st["level"])
+
+    def __repr__(self) -> str:
+        extra = f", level {self._level}" if self._level else ""
+        extra += f", smoothed {self.smooth:g} px" if self.smooth else ""
+        return f"WindowedImage({self.name!r}, {self.shape[0]} x {self.shape[1]}{extra})"
+
+
+class _Shape:
+    """The shape of a derived pyramid level (its pixels come from the base image)."""
+
+    def __init__(self, shape: tuple[int, int], name: str) -> None:
+        self.shape, self.name = shape, name
+
+    def read(self, l0: int, l1: int, s0: int, s1: int) -> Array:  # pragma: no cover - never called
+        raise InvalidInputError(f"{self.name} is derived from its base image")
+
+
+def windowed_pyramid(image: WindowedImage, levels: int) -> list[WindowedImage]:
+    """:meth:`WindowedImage.pyramid` as a function."""
+    return image.pyramid(levels)
+
+
+def spatial_order(line: Array, sample: Array, cell: float = 64.0) -> NDArray[np.intp]:
+    """Indices that visit points in Z (Morton) order of ``cell``-pixel cells: consecutive points are close.
+
+    Batches of consecutive points then cover compact regions of the image (few, small windows).
+    """
+    l = np.nan_to_num(np.asarray(line, dtype=float) / cell, nan=0.0, posinf=0.0, neginf=0.0)
+    s = np.nan_to_num(np.asarray(sample, dtype=float) / cell, nan=0.0, posinf=0.0, neginf=0.0)
+    a = np.clip(l, 0, 65535).astype(np.uint64)
+    b = np.clip(s, 0, 65535).astype(np.uint64)
+
+    def spread(v: NDArray[np.uint64]) -> NDArray[np.uint64]:
+        v = (v | (v << np.uint64(8))) & np.uint64(0x00FF00FF)
+        v = (v | (v << np.uint64(4))) & np.uint64(0x0F0F0F0F)
+        v = (v | (v << np.uint64(2))) & np.uint64(0x33333333)
+        return (v | (v << np.uint64(1))) & np.uint64(0x55555555)
+
+    return np.argsort((spread(a) << np.uint64(1)) | spread(b), kind="stable")
+
+
+def region_groups(y: Array, x: Array, shape: Sequence[int], before: int, after: int,
+                  max_pixels: int = 1 << 22) -> list[tuple[NDArray[np.intp], tuple[int, int, int, int]]]:
+    """Groups of rows (axis 0) of coordinate arrays and the image region each group's stencils need.
+
+    ``y``, ``x`` are array-index coordinates (CSM minus 0.5) of shape ``(n, ...)``; a stencil at
+    ``i = floor(y)`` reaches rows ``i - before .. i + after``. Groups are split until each region
+    holds at most ``max_pixels`` pixels (or one row is left). Rows without a finite coordinate, or
+    whose stencils miss the image, are in no group.
+    """
+    h, w = int(shape[0]), int(shape[1])
+    n = y.shape[0]
+    yy = y.reshape(n, -1)
+    xx = x.reshape(n, -1)
+    fin = np.isfinite(yy) & np.isfinite(xx)
+    has = fin.any(axis=1)
+    with np.errstate(invalid="ignore"):
+        lo_y = np.floor(np.where(fin, yy, np.inf).min(axis=1)) - before
+        hi_y = np.floor(np.where(fin, yy, -np.inf).max(axis=1)) + after
+        lo_x = np.floor(np.where(fin, xx, np.inf).min(axis=1)) - before
+        hi_x = np.floor(np.where(fin, xx, -np.inf).max(axis=1)) + after
+    # a row whose stencils lie wholly outside the image samples nothing there
+    use = has & (lo_y <= h - 1) & (hi_y >= 0) & (lo_x <= w - 1) & (hi_x >= 0)
+    lo_y, lo_x = np.clip(lo_y, 0, h - 1), np.clip(lo_x, 0, w - 1)
+    hi_y, hi_x = np.clip(hi_y, 0, h - 1), np.clip(hi_x, 0, w - 1)
+    rows = np.flatnonzero(use)
+    out: list[tuple[NDArray[np.intp], tuple[int, int, int, int]]] = []
+    stack = [rows]
+    while stack:
+        r = stack.pop()
+        if r.size == 0:
+            continue
+        a0, a1 = int(lo_y[r].min()), int(hi_y[r].max()) + 1
+        b0, b1 = int(lo_x[r].min()), int(hi_x[r].max()) + 1
+        if (a1 - a0) * (b1 - b0) <= max_pixels or r.size == 1:
+            out.append((r, (a0, a1, b0, b1)))
+            continue
+        # split at the median of the rows' centres along the region's longer side
+        c = (lo_y[r] + hi_y[r]) if (a1 - a0) >= (b1 - b0) else (lo_x[r] + hi_x[r])
+        order = np.argsort(c, kind="stable")
+        half = r.size // 2
+        stack += [r[order[half:]], r[order[:half]]]
+    return out
