@@ -166,6 +166,14 @@ class _Parts:
     def reuse(self, name: str) -> None:
         self.reused.append(name)
 
+    def stale(self, digests: dict[str, str]) -> list[str]:
+        """The parts (name -> digest) not fresh; the others are counted as reused."""
+        out = [name for name, d in digests.items() if not self.fresh(name, d)]
+        for name in digests:
+            if name not in out:
+                self.reuse(name)
+        return out
+
     def done(self, name: str, digest: str, files: Iterable[str | Path]) -> None:
         """Record part ``name`` as written (its files relative to the example's folder)."""
         rels = [str(Path(f).resolve().relative_to(self.root.resolve())) for f in files]
@@ -283,11 +291,9 @@ def _write_block_images(bm: Any, use: list[str], parts: _Parts, mission_digest: 
     sites = sorted({bm.model.image(n).site for n in use})
     dtm_files = {block_dtm_file(bm, k) for k in sites}
     dtm_digest = parts.digest({"mission": mission_digest, "dtm": sorted(dtm_files)})
-    stale = [n for n in use if not parts.fresh(f"image:{n}", digests[n])]
+    stale = parts.stale({f"image:{n}": d for n, d in digests.items()})
+    stale = [n for n in use if f"image:{n}" in stale]
     dtm_stale = not parts.fresh("dtm", dtm_digest)
-    for n in use:
-        if n not in stale:
-            parts.reuse(f"image:{n}")
     if stale or dtm_stale:
         # the DTMs come with any rendering; a stale DTM alone re-renders the first image of its site
         render_block(bm, names=stale or [next(n for n in use if bm.model.image(n).site == sites[0])], supersample=2)
@@ -308,11 +314,9 @@ def _write_full_size_images(bm: Any, use: list[str], parts: _Parts, mission_dige
               "pixel_type": "UnsignedByte"}
     digests = {n: parts.digest({"mission": mission_digest, "image": n, **render}) for n in use}
     dtm_digest = parts.digest({"mission": mission_digest, "dtm": block_dtm_file(bm)})
-    stale = [n for n in use if not parts.fresh(f"image:{n}", digests[n])]
+    stale = parts.stale({f"image:{n}": d for n, d in digests.items()})
+    stale = [n for n in use if f"image:{n}" in stale]
     dtm_stale = not parts.fresh("dtm", dtm_digest)
-    for n in use:
-        if n not in stale:
-            parts.reuse(f"image:{n}")
     if not (stale or dtm_stale):
         parts.reuse("dtm")
         return {**digests, "dtm": dtm_digest}
@@ -415,9 +419,9 @@ def _config_text(bm: Any, use: list[str], seed: int, quick: bool, output: str, f
     else:
         name = (f"synthetic block: {len(use)} images over {n_sites} sites, 3 orbits, NAC-like / TC-like / frame "
                 f"cameras (seed {seed})")
-    # full size: one interest point per 1024-pixel cell (~250 per image) and a search as wide as the
+    # full size: one interest point per 512-pixel cell (~1,000 per image) and a search as wide as the
     # navigation errors are in 0.5 m pixels
-    cell = 1024 if full_size else (64 if quick else 48)
+    cell = 512 if full_size else (64 if quick else 48)
     return EXAMPLE_CONFIG.format(output=output, name=name, images=images, cell=cell,
                                  search="256.0" if full_size else "128.0",
                                  dtm=_DTM_SECTION if n_sites == 1 else _NO_DTM)
