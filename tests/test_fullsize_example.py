@@ -126,11 +126,15 @@ def _written(caplog) -> str:
     return msgs[-1]
 
 
+FOUR = ["orbit1_nacl_a", "orbit1_nacr_a", "orbit2_nacl_a", "orbit2_nacr_a"]   # strip a of both orbits
+
+
 def test_full_size_example_writes_cubes_once(tmp_path, small_full_size, caplog):
     caplog.set_level(logging.INFO, logger="lunarmap")
-    cfg = write_example(tmp_path, full_size=True, n_control=4, n_check=4)
+    kw = dict(full_size=True, n_control=4, n_check=4, names=FOUR)
+    cfg = write_example(tmp_path, **kw)
     text = cfg.read_text()
-    assert 'pixels = "mission/orbit2_nacr_b.cub"' in text and 'group = "2-nacr"' in text
+    assert 'pixels = "mission/orbit2_nacr_a.cub"' in text and 'group = "2-nacr"' in text
     bm = open_block_mission(tmp_path / "mission")
     cube = IsisCube(tmp_path / "mission" / "orbit1_nacl_a.cub")
     assert cube.layout.fmt == "Tile" and cube.layout.dtype == np.uint8 and cube.shape == (1, 256, 5064)
@@ -184,14 +188,14 @@ def test_full_size_example_writes_cubes_once(tmp_path, small_full_size, caplog):
     # a second call rewrites nothing, quickly
     before = _files(tmp_path)
     t = time.perf_counter()
-    write_example(tmp_path, full_size=True, n_control=4, n_check=4)
+    write_example(tmp_path, **kw)
     assert time.perf_counter() - t < 5.0
     assert _files(tmp_path) == before
     assert "0 part(s) written" in _written(caplog)
     # a touched cube (and only it) is rendered again; a killed render's temporary file is cleaned up
     os.utime(cube.path, ns=(1, 1))
     (tmp_path / "mission" / ".orbit1_nacl_a.cub.x.tmp").write_bytes(b"partial")
-    write_example(tmp_path, full_size=True, n_control=4, n_check=4)
+    write_example(tmp_path, **kw)
     assert "1 part(s) written (image:orbit1_nacl_a)" in _written(caplog)
     assert not (tmp_path / "mission" / ".orbit1_nacl_a.cub.x.tmp").exists()
     np.testing.assert_array_equal(open_image(cube.path).values[0], dn)    # the same pixels: seeded noise
