@@ -160,15 +160,13 @@ def _residual(ox, oy, oz, dx, dy, dz, oo, od, dd, radius, h, lat_g, lon_g, z, in
 
 
 @numba.njit(cache=True)
-def _reference(x, y, zz, lon, lat):
-    """The linearisation tuple of :func:`_height_at` at a ground point and its longitude, latitude (degrees)."""
-    rho2 = x * x + y * y
-    rho = math.sqrt(rho2)
-    r2 = rho2 + zz * zz
+def _reference(x, y, zz, lon, lat, inv_rho, inv_r):
+    """The linearisation tuple of :func:`_height_at` at a ground point, its longitude, latitude (degrees) and
+    ``1 / sqrt(x^2 + y^2)``, ``1 / |p|``."""
     k = 180.0 / math.pi
-    a = k / rho2
-    b = k / (r2 * rho)
-    return (x, y, zz, lon, lat, -y * a, x * a, -x * zz * b, -y * zz * b, rho2 * b)
+    a = k * inv_rho * inv_rho
+    b = k * inv_r * inv_r * inv_rho
+    return (x, y, zz, lon, lat, -y * a, x * a, -x * zz * b, -y * zz * b, (x * x + y * y) * b)
 
 
 #: Trial heights within this distance (m) of the last exact sphere intersection move along the ray
@@ -236,7 +234,12 @@ def _intersect(ox, oy, oz, dx, dy, dz, radius, h_start, lo0, hi0, tol, max_iter,
             new = 0.5 * (lo + hi)
         if f == 0.0:
             new = h
-        if abs(new - h) < tol or f == 0.0 or hi - lo < tol:
+        step = abs(new - h)
+        # Converged when the step is below tol (intersect_dtm's test), or when a secant step shrank so
+        # fast (superlinear convergence: the next error ~ step^2 / previous step) that the error left
+        # is below tol / 10: it saves the evaluation that would only confirm it.
+        if step < tol or f == 0.0 or hi - lo < tol or (
+                not stall and h_prev == h_prev and step * step < 0.1 * tol * abs(h - h_prev)):
             if abs(new - ha) < _TAYLOR_REACH_M:
                 dh = new - ha
                 return new, sa + dh * (s1 + 0.5 * s2 * dh)
@@ -315,8 +318,8 @@ def cast_rows(pos, rot, look, k, radius, tol, max_iter, lat_g, lon_g, z, lon360,
         dlat = min(dlat, lat_g[i] - lat_g[i - 1])
     for j in range(1, lon_g.shape[0]):
         dlon = min(dlon, lon_g[j] - lon_g[j - 1])
-    rad_dlon = math.radians(dlon)
-    rad_dlat = math.radians(dlat)
+    grad_e = 1.0 / (radius * math.radians(dlon))   # height difference over one node -> slope (x 1/cos lat)
+    grad_n = 1.0 / (radius * math.radians(dlat))
     inv_k2 = 1.0 / (k * k)
     n_bands = (rows + _BAND_ROWS - 1) // _BAND_ROWS
     # Bands of image rows, each walked in blocks of columns: a block's rays land on a small patch of the
@@ -377,16 +380,20 @@ def cast_rows(pos, rot, look, k, radius, tol, max_iter, lat_g, lon_g, z, lon360,
                         xyz[sr, sc, 0] = gx
                         xyz[sr, sc, 1] = gy
                         xyz[sr, sc, 2] = gz
-                    lon, lat = _lonlat(gx, gy, gz)
-                    ref = _reference(gx, gy, gz, lon, lat)
+                    rho = math.sqrt(gx * gx + gy * gy)
+                    inv_rho = 1.0 / rho
+                    inv_r = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
+                    lon = math.degrees(math.atan2(gy, gx))
+                    lat = math.degrees(math.atan2(gz, rho))
+                    ref = _reference(gx, gy, gz, lon, lat, inv_rho, inv_r)
                     if alb_mode == 1:
                         value = _tiled_albedo(t1, t2, alb_p, lon, lat)
                     else:
                         value = _bilinear(alb_lat, alb_lon, alb_z, a_inv_lat, a_inv_lon, _wrap_lon(lon, alb_lon360),
                                           lat)
                     if use_sun:
-                        value *= _lambert(gx, gy, gz, lon, lat, lat_g, lon_g, z, inv_lat, inv_lon, lon360, dlat, dlon,
-                                          rad_dlat, rad_dlon, radius, sun)
+                        value *= _lambert(gx, gy, gz, rho, inv_rho, inv_r, lon, lat, lat_g, lon_g, z, inv_lat, inv_lon,
+                                          lon360, dlat, dlon, grad_e, grad_n, sun)
                     out[r, pc] += value
                 h1s[rr] = h1
                 h2s[rr] = h2
@@ -398,29 +405,27 @@ def cast_rows(pos, rot, look, k, radius, tol, max_iter, lat_g, lon_g, z, lon360,
 
 
 @numba.njit(cache=True)
-def _lambert(gx, gy, gz, lon, lat, lat_g, lon_g, z, inv_lat, inv_lon, lon360, dlat, dlon, rad_dlat, rad_dlon,
-             radius, sun):
+def _lambert(gx, gy, gz, rho, inv_rho, inv_r, lon, lat, lat_g, lon_g, z, inv_lat, inv_lon, lon360, dlat, dlon,
+             grad_e, grad_n, sun):
     """``max(cos i, 0) / max(cos i_flat, 0.05)`` at a ground point: render_image's shading.
 
     The normal is surface_normals' (central differences over one DTM node spacing); the sines and
-    cosines of latitude and longitude come from the point itself.
+    cosines of latitude and longitude come from the point itself (``rho = sqrt(x^2 + y^2)``,
+    ``inv_r = 1 / |p|``).
     """
     h_e = (_bilinear(lat_g, lon_g, z, inv_lat, inv_lon, _wrap_lon(lon + dlon / 2, lon360), lat)
            - _bilinear(lat_g, lon_g, z, inv_lat, inv_lon, _wrap_lon(lon - dlon / 2, lon360), lat))
     wl = _wrap_lon(lon, lon360)
     h_n = (_bilinear(lat_g, lon_g, z, inv_lat, inv_lon, wl, lat + dlat / 2)
            - _bilinear(lat_g, lon_g, z, inv_lat, inv_lon, wl, lat - dlat / 2))
-    rho = math.sqrt(gx * gx + gy * gy)
-    gn = math.sqrt(gx * gx + gy * gy + gz * gz)
-    cphi, sphi, clam, slam = rho / gn, gz / gn, gx / rho, gy / rho
-    dz_de = h_e / (radius * cphi * rad_dlon)
-    dz_dn = h_n / (radius * rad_dlat)
+    cphi, sphi, clam, slam = rho * inv_r, gz * inv_r, gx * inv_rho, gy * inv_rho
+    dz_de = h_e * grad_e / cphi
+    dz_dn = h_n * grad_n
     nx = cphi * clam + dz_de * slam + dz_dn * sphi * clam
     ny = cphi * slam - dz_de * clam + dz_dn * sphi * slam
     nz = sphi - dz_dn * cphi
-    nn = math.sqrt(nx * nx + ny * ny + nz * nz)
-    cos_i = (nx * sun[0] + ny * sun[1] + nz * sun[2]) / nn
-    cos_flat = max((gx * sun[0] + gy * sun[1] + gz * sun[2]) / gn, 0.05)
+    cos_i = (nx * sun[0] + ny * sun[1] + nz * sun[2]) / math.sqrt(nx * nx + ny * ny + nz * nz)
+    cos_flat = max((gx * sun[0] + gy * sun[1] + gz * sun[2]) * inv_r, 0.05)
     return max(cos_i, 0.0) / cos_flat
 
 
