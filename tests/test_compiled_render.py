@@ -218,3 +218,13 @@ def test_render_cube_quantises_adds_seeded_noise_and_fails_cleanly(scene, camera
         render_cube(cam, rscene, tmp_path / "x.cub", seed=-1)
     with pytest.raises(InvalidInputError, match="projected"):
         RenderScene.of(dtm, xr.DataArray(np.zeros((2, 2)), dims=("y", "x")))
+
+
+def test_render_cube_real_pixels_are_not_rounded(scene, cameras, tmp_path):
+    dtm, raster, _ = scene
+    cam = cameras["frame"]
+    rscene = RenderScene.of(dtm, raster)
+    values, _ = render_window(cam, rscene, sun=SUN)
+    r = render_cube(cam, rscene, tmp_path / "real.cub", sun=SUN, gain=160.0, noise_sigma=0.0, pixel_type="Real",
+                    stripe_lines=64, tile=(64, 64))
+    np.testing.assert_allclose(open_image(r.path).values[0], (160.0 * values).astype(np.float32), rtol=1e-7)

@@ -305,7 +305,7 @@ def render_cube(camera: Any, scene: RenderScene, path: str | os.PathLike[str], *
                                       threads=threads)
             d = dn[: b - a]
             add_noise_and_quantise(values, a, 0, int(seed), float(gain), float(offset), float(noise_sigma), lo, hi,
-                                   null, d)
+                                   null, d, out_dtype.kind != "f")
             bad = ~np.isfinite(values)
             n_null += int(bad.sum())
             n_clipped += int(np.count_nonzero(((d == lo) | (d == hi)) & ~bad))

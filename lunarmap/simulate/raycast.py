@@ -449,8 +449,10 @@ def _splitmix(x):
 
 
 @numba.njit(parallel=True, cache=True)
-def add_noise_and_quantise(values, line0, sample0, seed, gain, offset, sigma, lo, hi, null, out):
+def add_noise_and_quantise(values, line0, sample0, seed, gain, offset, sigma, lo, hi, null, out, quantise=True):
     """``out = clip(rint(offset + gain * values + noise), lo, hi)``, ``null`` where ``values`` is not finite.
+
+    Without ``quantise`` the values are not rounded (Real cubes).
 
     The noise of pixel ``(line, sample)`` (absolute image indices) is a standard normal deviate drawn
     from a counter-based hash of ``(seed, line, sample)`` (SplitMix64, Box-Muller) times ``sigma``: the
@@ -471,4 +473,6 @@ def add_noise_and_quantise(values, line0, sample0, seed, gain, offset, sigma, lo
                 u1 = ((x >> np.uint64(11)) + np.uint64(1)) * (1.0 / 9007199254740993.0)   # (0, 1]
                 u2 = (_splitmix(x) >> np.uint64(11)) * (1.0 / 9007199254740992.0)         # [0, 1)
                 g += sigma * math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
-            out[r, c] = min(max(np.rint(g), lo), hi)   # nearest integer, ties to even (as write_cube)
+            if quantise:
+                g = np.rint(g)   # nearest integer, ties to even (as write_cube)
+            out[r, c] = min(max(g, lo), hi)
