@@ -215,7 +215,7 @@ def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = F
         Sites of the block (:func:`lunarmap.synthetic.write_block_mission`): ``12 * sites`` images.
     full_size : bool
         The full-size mission (see the module docstring): 8 images of 52,224 x 5,064 pixels as ISIS
-        cubes, ~2.3 GB; about 6 minutes to write on two idle cores.
+        cubes, 2.2 GB; 104 s of CPU per image (about 7 minutes on two free cores).
     threads : int
         Threads of the full-size renderer.
     """
