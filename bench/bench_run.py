@@ -116,6 +116,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--folder", default=str(HERE / "data" / "run_example"))
     ap.add_argument("--sites", type=int, default=1)
+    ap.add_argument("--site-spacing", type=float, default=None, help="degrees between sites (e.g. -2.5)")
+    ap.add_argument("--half-width", type=float, default=None, help="pass half-width, s (e.g. 12)")
+    ap.add_argument("--no-direct", action="store_true", help="skip the direct-call baseline")
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--screenshot", action="store_true")
@@ -126,6 +129,8 @@ def main() -> None:
     toml = folder / "run.toml"
     if not toml.exists():
         kw = {"sites": args.sites} if args.sites != 1 else {}
+        if args.site_spacing is not None:
+            kw.update(site_spacing_deg=args.site_spacing, site_half_width_s=args.half_width)
         c = time.perf_counter()
         write_example(folder, **kw)
         print(f"example written in {time.perf_counter() - c:.1f} s")
@@ -135,7 +140,7 @@ def main() -> None:
     stages: dict[str, list] = {"serial": [], "cluster": []}
     sigma0 = {}
     for r in range(args.rounds):
-        d = direct(cfg)
+        d = {"total": float("nan"), "sigma0": float("nan")} if args.no_direct else direct(cfg)
         rows["direct"].append(d["total"])
         sigma0["direct"] = d["sigma0"]
         res, tot = timed_run(cfg, "sync", 1, "serial")
@@ -164,8 +169,10 @@ def main() -> None:
     print("stage end times, serial (s):", {k: round(v, 1) for k, v in stages["serial"][-1].items()})
     print("stage end times, cluster (s):", {k: round(v, 1) for k, v in stages["cluster"][-1].items()})
     print("sigma0:", {k: round(v, 10) for k, v in sigma0.items()})
+    print(f"tasks in the graph: {res_c.tasks} ({res_c.tasks / len(cfg.images):.2f} per image); peak RSS (MB): "
+          + ", ".join(f"{k} {v:.0f}" for k, v in res_c.peak_rss_mb.items()))
     per_task = {}
-    for st in ("isd", "footprint", "rpc", "detect", "match", "tiepoints", "adjust", "kernels"):
+    for st in ("isd", "rpc", "pyramid", "detect", "match", "tiepoints", "adjust", "kernels", "rpc_adjusted"):
         sec = [d.seconds for d in res.done if d.step == st and d.computed]
         if sec:
             per_task[st] = {"n": len(sec), "median_s": statistics.median(sec), "max_s": max(sec), "sum_s": sum(sec)}
@@ -190,6 +197,8 @@ def main() -> None:
                              "images": len(cfg.images), "workers": args.workers, "rounds": args.rounds,
                              "median_s": med, "rerun_s": t_rerun, "load": os.getloadavg()[0],
                              "stages_serial": stages["serial"][-1], "stages_cluster": stages["cluster"][-1], "per_task": per_task,
+                             "tasks": res_c.tasks, "peak_rss_mb": res_c.peak_rss_mb,
+                             "observations": res.summary["n_observations"], "pairs": res.summary["pairs_candidate"],
                              "screenshot": shot}) + "\n")
 
 

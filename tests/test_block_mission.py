@@ -717,10 +717,12 @@ def test_two_sites_scenes_render_and_check_points(block2, tmp_path):
 
 
 @pytest.mark.parametrize("kwargs", [
-    {"sites": 0}, {"sites": 9}, {"sites": 2.0}, {"sites": 2, "site_spacing_deg": 3.0},
+    {"sites": 0}, {"sites": 49}, {"sites": 2.0}, {"sites": 2, "site_spacing_deg": 0.5},
+    {"sites": 2, "site_spacing_deg": 3.0},    # 45-s pass windows 56 s apart: no time to slew
     {"sites": 2, "site_spacing_deg": 25.0}, {"sites": 2, "site_spacing_deg": float("nan")},
-    {"sites": 4, "site_spacing_deg": -20.0},  # 57, 37, 17, -3: the last site is too near the equator
+    {"sites": 8, "site_spacing_deg": -20.0},  # 57 ... -83: the last sites are too near the pole
     {"sites": 3, "site_spacing_deg": 10.0},   # 57, 67, 77: too near the pole
+    {"sites": 2, "site_half_width_s": 5.0},   # the TC and frame camera see the site outside the window
 ])
 def test_bad_site_arguments_write_nothing(tmp_path, kwargs):
     dest = tmp_path / "new"
@@ -757,3 +759,17 @@ def test_two_site_workflow_run(tmp_path):
     for item, note in notes.items():  # pairs within a site are matched
         a, b = item.split(" -> ")
         assert a[:2] == b[:2] and not note.startswith("skipped"), (item, note)
+
+
+def test_short_pass_windows_give_many_sites_with_their_slews():
+    """Sites 2.5 degrees apart with 12-s windows: 16 sites, 192 images, every camera inside its window."""
+    from lunarmap.synthetic.block import MIN_SLEW_S, build_block_model
+
+    m = build_block_model(0, sites=16, site_spacing_deg=-2.5, site_half_width_s=12.0)
+    assert len(m.images) == 192 and m.sites[-1].latitude_deg == pytest.approx(57.0 - 15 * 2.5)
+    w = sorted((p.start_et, p.end_et) for p in m.passes)
+    assert all(b[0] - a[1] >= MIN_SLEW_S for a, b in zip(w, w[1:]))
+    assert all(abs((p.end_et - p.start_et) - 24.0) < 1e-9 for p in m.passes)
+    for im in m.images:                      # every image's mid time lies in its pass window
+        p = m.pass_of(im.orbit, im.site)
+        assert p.start_et < im.center_et < p.end_et

@@ -364,3 +364,76 @@ def test_isis_cube_pixels_give_the_same_run(example, serial):
         replace[f'pixels = "mission/{name}.nc"'] = f'pixels = "mission/{name}.cub"'
     res = run(_config(example, "cubes", **replace), scheduler="sync", report=False)
     np.testing.assert_array_equal(_points(res), _points(serial))
+
+
+def test_graph_stays_small_and_a_rerun_starts_no_cluster(example, serial, monkeypatch):
+    """About two tasks per image (one per image, about one match batch per image, the block), and a rerun
+    whose outputs are all stored neither computes nor starts a cluster; renaming images gives another
+    tie-point table (its key covers the names) and reuses every match."""
+    import lunarmap.workflows.engine as eng
+    from lunarmap.workflows.store import Store
+
+    cfg = serial.config
+    store = Store(cfg.output / "store")
+    first = eng.build_graph(cfg, store, images_only=True)
+    assert sorted(first.stage_of.values()) == ["image"] * 4 and not first.computes()
+    done = eng._execute(first, "sync", eng._Progress(first.stage_of))
+    graph = eng.build_graph(cfg, store, done=done)
+    stages = list(graph.stage_of.values())
+    assert stages.count("match") <= len(NAMES) and len(graph.pairs) == 6
+    assert len(first.tasks) + len(graph.tasks) <= 2 * len(NAMES) + 3 + min(16, len(NAMES))
+    assert not graph.computes()
+
+    def no_cluster(*args, **kwargs):
+        raise AssertionError("a cluster was started for a run with nothing to compute")
+
+    monkeypatch.setattr(eng, "_client", no_cluster)
+    assert run(cfg, scheduler=None, report=False).computed == 0
+    monkeypatch.undo()
+    renamed = load_config(_config(example, "serial", **{'name = "orbit2_nac"': 'name = "orbit2_nac_b"'}))
+    g2 = eng.build_graph(renamed, store, done={k.replace("orbit2_nac", "orbit2_nac_b"): v for k, v in done.items()})
+    tie = [k for k, s in graph.stage_of.items() if s == "tiepoints"]
+    tie2 = [k for k, s in g2.stage_of.items() if s == "tiepoints"]
+    assert tie != tie2 and not Path(g2.outputs[tie2[0]][0]).exists()
+    assert {k for k, s in g2.stage_of.items() if s == "match"} == {k for k, s in graph.stage_of.items() if s == "match"}
+
+
+def test_a_pyramid_store_lost_mid_run_is_computed_again_with_the_same_results(example, serial, monkeypatch, caplog):
+    """Pyramid stores deleted after the images' phase (or damaged) are computed again; results identical."""
+    import logging
+
+    import lunarmap.workflows.engine as eng
+
+    out = serial.config.output
+    cfg = _config(example, "pyramids")
+    shutil.copytree(out / "store", Path(load_config(cfg).output) / "store", dirs_exist_ok=True)
+    store = Path(load_config(cfg).output) / "store"
+    for p in (store / "match").glob("*.npz"):
+        p.unlink()                                    # the pairs must read the images again
+    real = eng.build_graph
+
+    def lose_pyramids(*args, **kwargs):
+        if kwargs.get("done") is not None:            # between the two phases
+            files = sorted((store / "pyramid").glob("*.nc"))
+            files[0].unlink()
+            files[1].write_bytes(files[1].read_bytes()[:2000])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(eng, "build_graph", lose_pyramids)
+    with caplog.at_level(logging.WARNING, logger="lunarmap"):
+        res = run(cfg, scheduler="sync", report=False)
+    assert res.counts()["match"] == (6, 0) and res.counts()["pyramid"] == (0, 4)
+    assert sum("computing its pyramid again" in r.message for r in caplog.records) == 2
+    np.testing.assert_array_equal(_points(res), _points(serial))
+    monkeypatch.undo()
+    # a damaged store found by the images' phase: recomputed there
+    victim = sorted((store / "pyramid").glob("*.nc"))[0]
+    victim.write_bytes(b"garbage")
+    res = run(cfg, scheduler="sync", report=False)
+    assert res.counts()["pyramid"] == (1, 3) and res.computed == 1
+
+
+def test_pixels_that_do_not_match_their_label_are_named(example):
+    cfg = _config(example, "mismatch", **{'pixels = "mission/orbit1_nac.nc"': 'pixels = "mission/orbit2_frame_a.nc"'})
+    with pytest.raises(WorkflowError, match="orbit1_nac.*label.*says"):
+        run(cfg, scheduler="sync", report=False)

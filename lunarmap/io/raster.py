@@ -233,8 +233,12 @@ class _GdalReader:
         (b0, b1, _), (l0, l1, _), (s0, s1, _) = (k.indices(n) for k, n in zip(key, self.shape))
         if b1 <= b0 or l1 <= l0 or s1 <= s0:
             return np.empty((max(b1 - b0, 0), max(l1 - l0, 0), max(s1 - s0, 0)), self.dtype)
-        with rasterio.open(self.path) as ds:
-            return ds.read(list(range(b0 + 1, b1 + 1)), window=Window(s0, l0, s1 - s0, l1 - l0))
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # NotGeoreferencedWarning for plain images, on every window
+            with rasterio.open(self.path) as ds:
+                return ds.read(list(range(b0 + 1, b1 + 1)), window=Window(s0, l0, s1 - s0, l1 - l0))
 
 
 def _open_gdal(path: str, chunks: Any) -> xr.DataArray:

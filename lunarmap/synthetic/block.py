@@ -74,6 +74,7 @@ from .orbit import KeplerOrbit
 __all__ = [
     "BlockImagePlan", "BlockPass", "BlockSite", "BlockModel", "build_block_model", "block_geometry",
     "SITE_LATITUDE_DEG", "SUN_OFFSET_DEG", "MAX_SITES", "SITE_SPACING_DEG", "MULTI_SITE_HALF_WIDTH",
+    "MIN_SITE_HALF_WIDTH",
     "MIN_SLEW_S", "MULTI_SITE_NAVIGATION", "image_name", "image_footprint",
     "SITE_TRACK_OFFSET_M", "PASS_HALF_WIDTH", "BLOCK_ORBITS", "PUSHBROOM_LINES", "FRAME_ADVANCE",
     "TRUTH_SPK_STEP", "TRUTH_CK_STEP", "NAV_SPK_STEP", "NAV_CK_STEP", "SPK_MARGIN", "LAYOUTS",
@@ -104,11 +105,14 @@ NAV_CK_STEP = 0.25
 #: Truth SPK coverage beyond the first and last pass, s.
 SPK_MARGIN = 600.0
 #: Most sites per block.
-MAX_SITES = 8
+MAX_SITES = 48
 #: Default latitude step from one site to the next, degrees (negative: southward; about 150 s of flight).
 SITE_SPACING_DEG = -8.0
-#: Half-width of each pass window of a block of several sites (constant roll, kernel coverage), s.
+#: Half-width of each pass window of a block of several sites (constant roll, kernel coverage), s;
+#: ``site_half_width_s`` sets another (at least :data:`MIN_SITE_HALF_WIDTH`).
 MULTI_SITE_HALF_WIDTH = 45.0
+#: Shortest pass half-width: the TC sees a site about 3.3 s before the NAC, the frame camera 3.3 s after.
+MIN_SITE_HALF_WIDTH = 8.0
 #: Shortest gap between the pass windows of consecutive sites (the slew), s.
 MIN_SLEW_S = 20.0
 #: Default navigation errors of a block of several sites: the single-site defaults with ten times smaller
@@ -515,7 +519,7 @@ def _is_number(v: Any) -> bool:
 
 
 def _check_args(seed: Any, orbits: Any, latitude: Any, sites: Any = 1, spacing: Any = SITE_SPACING_DEG,
-                layout: Any = "block") -> None:
+                half_width: Any = None, layout: Any = "block") -> None:
     if layout not in LAYOUTS:
         raise InvalidInputError(f"layout must be one of {LAYOUTS}, got {layout!r}")
     if layout == "full_size" and sites != 1:
@@ -529,22 +533,26 @@ def _check_args(seed: Any, orbits: Any, latitude: Any, sites: Any = 1, spacing: 
                                 f"(consecutive tracks must stay within ~30 km), got {latitude!r}")
     if not _is_int(sites) or not 1 <= sites <= MAX_SITES:
         raise InvalidInputError(f"sites must be an integer from 1 to {MAX_SITES}, got {sites!r}")
+    if half_width is not None and (not _is_number(half_width) or not half_width >= MIN_SITE_HALF_WIDTH):
+        raise InvalidInputError(f"site_half_width_s must be a number >= {MIN_SITE_HALF_WIDTH:g} s (the TC and the "
+                                f"frame camera see a site a few seconds before and after the NAC), got {half_width!r}")
     if sites > 1:
-        if not _is_number(spacing) or not 6.0 <= abs(spacing) <= 20.0:
-            raise InvalidInputError(f"site_spacing_deg must be a number with 6 <= |spacing| <= 20 degrees "
-                                    f"(pass windows of {MULTI_SITE_HALF_WIDTH:g} s and a slew between sites), "
-                                    f"got {spacing!r}")
+        if not _is_number(spacing) or not 1.0 <= abs(spacing) <= 20.0:
+            raise InvalidInputError(f"site_spacing_deg must be a number with 1 <= |spacing| <= 20 degrees "
+                                    f"(the pass windows and a slew between sites must fit), got {spacing!r}")
         lats = [float(latitude) + k * float(spacing) for k in range(int(sites))]
-        bad = [lat for lat in lats if not 10.0 <= abs(lat) <= 75.0]
+        # site 1 as above; the others may cross the equator, where the tracks are 31 km apart
+        bad = [lat for lat in lats if not abs(lat) <= 75.0]
         if bad:
             raise InvalidInputError(f"site latitudes {[round(v, 6) for v in lats]} (site_latitude_deg "
                                     f"{latitude!r}, site_spacing_deg {spacing!r}, {sites} sites) leave "
-                                    f"10 <= |latitude| <= 75 degrees at {bad}")
+                                    f"|latitude| <= 75 degrees at {bad}")
 
 
 def build_block_model(seed: int = 0, *, orbits: int = BLOCK_ORBITS, site_latitude_deg: float = SITE_LATITUDE_DEG,
                       navigation: NavigationErrorSpec | None = None, sites: int = 1,
-                      site_spacing_deg: float = SITE_SPACING_DEG, layout: str = "block") -> BlockModel:
+                      site_spacing_deg: float = SITE_SPACING_DEG,
+                      site_half_width_s: float | None = None, layout: str = "block") -> BlockModel:
     """The truth and navigation model of the imaging block (no files, no SPICE).
 
     Parameters
@@ -564,8 +572,13 @@ def build_block_model(seed: int = 0, *, orbits: int = BLOCK_ORBITS, site_latitud
         every orbit by the same four images.
     site_spacing_deg : float
         Latitude of site ``k + 1`` minus that of site ``k``, degrees
-        (``6 <= |spacing| <= 20``; ignored with one site). Every site must
-        satisfy ``10 <= |lat| <= 75``.
+        (``1 <= |spacing| <= 20``; ignored with one site). Site 1 must
+        satisfy ``10 <= |lat| <= 75``, the others ``|lat| <= 75``; the pass
+        windows of consecutive sites must leave :data:`MIN_SLEW_S` between them.
+    site_half_width_s : float, optional
+        Half-width of each pass window of a block of several sites, seconds
+        (default :data:`MULTI_SITE_HALF_WIDTH`; at least :data:`MIN_SITE_HALF_WIDTH`):
+        shorter windows let sites lie closer (e.g. 12 s and 2.5 degrees: 40 sites, 480 images).
     layout : str
         ``"block"`` (default): per pass the NAC-like, TC-like and two frame images of ~1 m pixels.
         ``"full_size"`` (one site): per pass four full-size LRO-NAC-like images (52,224 lines x
@@ -579,7 +592,7 @@ def build_block_model(seed: int = 0, *, orbits: int = BLOCK_ORBITS, site_latitud
     -------
     BlockModel
     """
-    _check_args(seed, orbits, site_latitude_deg, sites, site_spacing_deg, layout)
+    _check_args(seed, orbits, site_latitude_deg, sites, site_spacing_deg, site_half_width_s, layout)
     n_sites = int(sites)
     if navigation is None:
         spec = NavigationErrorSpec() if n_sites == 1 else MULTI_SITE_NAVIGATION
@@ -637,7 +650,7 @@ def build_block_model(seed: int = 0, *, orbits: int = BLOCK_ORBITS, site_latitud
                       orbit=orbit, nadir=nadir, passes=(), mounting_angles_deg=mounting, images=(),
                       navigation=None, navigation_spec=spec,  # type: ignore[arg-type]
                       cameras=cameras, sites=tuple(site_list), site_spacing_deg=spacing, layout=str(layout))
-    half = PASS_HALF_WIDTH if n_sites == 1 else MULTI_SITE_HALF_WIDTH
+    half = PASS_HALF_WIDTH if n_sites == 1 else float(site_half_width_s or MULTI_SITE_HALF_WIDTH)
     passes = []
     for k in range(orbits):
         for site in site_list:
@@ -698,13 +711,17 @@ def _point_at_site(stub: BlockModel, t_cross: float, site: Array, east: Array, n
     raise InvalidInputError(f"cannot point the NAC at the block site from the orbit crossing at ET {t_cross:.3f}")
 
 
-def _closest_time(model: BlockModel, naif_id: int, t_guess: float, site: Array, along: Array) -> float:
-    """Time at which a camera's boresight ground point passes the site along track."""
+def _closest_time(model: BlockModel, naif_id: int, t_guess: float, site: Array, along: Array,
+                  window: tuple[float, float] | None = None) -> float:
+    """Time at which a camera's boresight ground point passes the site along track (within the pass ``window``)."""
 
     def f(t: float) -> float:
         return float((model.boresight_ground(naif_id, t) - site) @ along)
 
-    return float(brentq(f, t_guess - 30.0, t_guess + 30.0, xtol=1e-9, rtol=1e-15))
+    lo, hi = t_guess - 30.0, t_guess + 30.0
+    if window is not None:      # short pass windows: the attitude exists only there
+        lo, hi = max(lo, window[0] + 0.5), min(hi, window[1] - 0.5)
+    return float(brentq(f, lo, hi, xtol=1e-9, rtol=1e-15))
 
 
 def _pushbroom_line_time(model: BlockModel, cam: BlockCameraSpec, t: float) -> float:
@@ -748,11 +765,11 @@ def _plan_images(model: BlockModel) -> list[BlockImagePlan]:
             lt = _pushbroom_line_time(model, BLOCK_NAC, p.epoch)
             out.append(BlockImagePlan(image_name(s.site, k, "nac", n), BLOCK_NAC, k, "nac", PUSHBROOM_LINES,
                                       p.epoch, lt, None, s.site))
-            t_tc = _closest_time(model, BLOCK_TC.naif_id, p.epoch, site, along)
+            t_tc = _closest_time(model, BLOCK_TC.naif_id, p.epoch, site, along, (p.start_et, p.end_et))
             lt = _pushbroom_line_time(model, BLOCK_TC, t_tc)
             out.append(BlockImagePlan(image_name(s.site, k, "tc", n), BLOCK_TC, k, "tc", PUSHBROOM_LINES, t_tc,
                                       lt, None, s.site))
-            t_fr = _closest_time(model, BLOCK_FRAME.naif_id, p.epoch, site, along)
+            t_fr = _closest_time(model, BLOCK_FRAME.naif_id, p.epoch, site, along, (p.start_et, p.end_et))
             h = 0.05
             speed = np.linalg.norm(model.boresight_ground(BLOCK_FRAME.naif_id, t_fr + h)
                                    - model.boresight_ground(BLOCK_FRAME.naif_id, t_fr - h)) / (2 * h)

@@ -418,10 +418,13 @@ class BlockMission:
 
 
 def _params(orbits: int, site_latitude_deg: float, spec: NavigationErrorSpec, sites: int = 1,
-            site_spacing_deg: float = SITE_SPACING_DEG, layout: str = "block") -> dict[str, Any]:
+            site_spacing_deg: float = SITE_SPACING_DEG, site_half_width_s: float | None = None,
+            layout: str = "block") -> dict[str, Any]:
     out = {"orbits": int(orbits), "site_latitude_deg": float(site_latitude_deg), "navigation": spec.to_dict()}
     if sites > 1:  # a one-site manifest stays as it was before sites existed
         out.update({"sites": int(sites), "site_spacing_deg": float(site_spacing_deg)})
+        if site_half_width_s is not None:
+            out["site_half_width_s"] = float(site_half_width_s)
     if layout != "block":  # so does the default layout's
         out["layout"] = layout
     return out
@@ -443,7 +446,8 @@ def _spec(navigation: NavigationErrorSpec | Mapping[str, Any] | None, sites: Any
 def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits: int | None = None,
                         site_latitude_deg: float = 57.0,
                         navigation: NavigationErrorSpec | Mapping[str, Any] | None = None, sites: int = 1,
-                        site_spacing_deg: float = SITE_SPACING_DEG, layout: str = "block") -> BlockMission:
+                        site_spacing_deg: float = SITE_SPACING_DEG,
+                        site_half_width_s: float | None = None, layout: str = "block") -> BlockMission:
     """Write the imaging block: kernels (TRUTH and NAVIGATION sets), labels and manifest.
 
     Parameters
@@ -465,14 +469,17 @@ def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits
         several sites :data:`~lunarmap.synthetic.block.MULTI_SITE_NAVIGATION`,
         whose drifts are ten times smaller).
     sites : int
-        Sites along the ground track (1 to 8), each seen on every orbit by
+        Sites along the ground track (1 to 48), each seen on every orbit by
         the same four images: ``4 * orbits * sites`` images, named
         ``s<site>_orbit<k>_<kind>`` when ``sites > 1`` (``orbit<k>_<kind>``
         with one site, whose files are exactly those written before sites
         existed).
     site_spacing_deg : float
         Latitude of site ``k + 1`` minus that of site ``k``, degrees (default
-        -8: southward, about 150 s of flight apart; ``6 <= |spacing| <= 20``).
+        -8: southward, about 150 s of flight apart; ``1 <= |spacing| <= 20``).
+    site_half_width_s : float, optional
+        Pass half-width of a block of several sites, seconds (see
+        :func:`~lunarmap.synthetic.block.build_block_model`).
     layout : str
         ``"block"`` (default) or ``"full_size"``: eight full-size LRO-NAC-like images (NAC-L and
         NAC-R, 52,224 x 5,064 pixels of ~0.5 m, two along-track strips per orbit) on 2 orbits by
@@ -493,7 +500,8 @@ def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits
     if orbits is None:
         orbits = FULL_SIZE_ORBITS if layout == "full_size" else 3
     model = build_block_model(seed, orbits=orbits, site_latitude_deg=site_latitude_deg, navigation=spec, sites=sites,
-                              site_spacing_deg=site_spacing_deg, layout=layout)
+                              site_spacing_deg=site_spacing_deg, site_half_width_s=site_half_width_s,
+                              layout=layout)
     dest = Path(folder).expanduser()
     if dest.exists() and not dest.is_dir():
         raise BlockMissionError(f"cannot write the block mission into {dest}: it exists and is not a folder")
@@ -504,7 +512,7 @@ def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits
         _write_kernels(model, staging)
         images = _image_records(model, staging)
         manifest = _manifest(model, images, _params(orbits, site_latitude_deg, spec, model.n_sites,
-                                                    site_spacing_deg, model.layout))
+                                                    site_spacing_deg, site_half_width_s, model.layout))
         atomic_write(staging / BLOCK_MANIFEST_NAME, lambda tmp: tmp.write_text(
             json.dumps(manifest, indent=1) + "\n", encoding="ascii"))
         (staging / TRUTH_METAKERNEL).write_text(_metakernel_text("truth", model.layout), encoding="ascii")
@@ -548,6 +556,7 @@ def open_block_mission(folder: str | os.PathLike[str] | BlockMission) -> BlockMi
                                   site_latitude_deg=float(p["site_latitude_deg"]),
                                   navigation=_spec(p["navigation"]), sites=int(p.get("sites", 1)),
                                   site_spacing_deg=float(p.get("site_spacing_deg", SITE_SPACING_DEG)),
+                                  site_half_width_s=p.get("site_half_width_s"),
                                   layout=str(p.get("layout", "block")))
     except (ValueError, KeyError, TypeError) as exc:
         raise BlockMissionError(f"{path} is not a valid block-mission manifest ({exc!r})") from None

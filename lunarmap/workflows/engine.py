@@ -72,6 +72,11 @@ class RunResult:
         Wall time from the start of the graph to each stage's last task.
     report : pathlib.Path or None
         The HTML report.
+    tasks : int
+        Tasks of the run's two graphs.
+    peak_rss_mb : dict
+        Peak resident memory (``VmHWM``, MB) of this process (``"main"``) and of every worker process
+        that ran tasks (by worker address).
     """
 
     config: RunConfig
@@ -81,6 +86,8 @@ class RunResult:
     done: list[Done]
     stage_seconds: dict[str, float] = field(default_factory=dict)
     report: Path | None = None
+    tasks: int = 0
+    peak_rss_mb: dict[str, float] = field(default_factory=dict)
 
     def counts(self) -> dict[str, tuple[int, int]]:
         """Per stage: (steps computed in this run, steps found in the store)."""
@@ -211,7 +218,7 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
                      [pix[a], pix[b], isd_key[a], isd_key[b], dtm_digest, rec[a]["detect"].key])
         jobs.append(MatchJob(k, (a, b), (str(spec[a].pixels), str(spec[b].pixels)),
                              (rec[a]["isd"], rec[b]["isd"]), (rec[a]["pyramid"], rec[b]["pyramid"]),
-                             rec[a]["detect"]))
+                             rec[a]["detect"], (pix[a], pix[b])))
         match_keys.append(k)
     # about one match task per image: the graph of 10,000 images stays at ~20,000 tasks
     per_task = max(1, -(-len(jobs) // max(1, len(names))))
@@ -442,9 +449,15 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
                   len(graph.tasks))
         progress.add(graph.stage_of)
         _execute(graph, scheduler_for(graph), progress)
+        peaks = {"main": peak_rss_mb()}
+        if client is not None:
+            peaks.update(client.run(peak_rss_mb))
         save_digests(digests)
         files, summary = _export(cfg, graph, progress.records)
-        result = RunResult(cfg, cfg.output, summary, files, progress.records, progress.stage_seconds)
+        summary["tasks"] = len(first.tasks) + len(graph.tasks)
+        summary["peak_rss_mb"] = peaks
+        result = RunResult(cfg, cfg.output, summary, files, progress.records, progress.stage_seconds,
+                           tasks=summary["tasks"], peak_rss_mb=peaks)
         if cfg.html if report is None else report:
             from .report import write_report
 
@@ -459,6 +472,20 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
             cluster.close()
         root.removeHandler(handler)
         handler.close()
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process, MB (``VmHWM`` of ``/proc/self/status``; ``ru_maxrss`` elsewhere)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def _client(address: Any, workers: int, cfg: RunConfig) -> tuple[Any, Any]:

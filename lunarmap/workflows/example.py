@@ -189,6 +189,7 @@ class _Parts:
 def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = False, n_control: int | None = None,
                   n_check: int | None = None, control_sigma: float = 0.5, sigma_px: float = 0.3,
                   names: list[str] | None = None, output: str = "run", sites: int = 1,
+                  site_spacing_deg: float | None = None, site_half_width_s: float | None = None,
                   full_size: bool = False, threads: int = 2) -> Path:
     """Write the example's data and configuration (only the parts not already there); returns ``run.toml``.
 
@@ -213,6 +214,9 @@ def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = F
         Run folder, relative to ``folder``.
     sites : int
         Sites of the block (:func:`lunarmap.synthetic.write_block_mission`): ``12 * sites`` images.
+    site_spacing_deg, site_half_width_s : float, optional
+        Latitude step between sites and pass half-width (defaults of
+        :func:`~lunarmap.synthetic.write_block_mission`; e.g. -2.5 and 12 for 40 sites).
     full_size : bool
         The full-size mission (see the module docstring): 8 images of 52,224 x 5,064 pixels as ISIS
         cubes, 2.2 GB; 104 s of CPU per image (about 7 minutes on two free cores).
@@ -230,7 +234,10 @@ def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = F
 
         raise InvalidInputError(f"the full-size example has one site, got sites={sites!r}")
     layout = "full_size" if full_size else "block"
-    mission_doc = {"seed": int(seed), "sites": int(sites), "layout": layout}
+    extra = {} if site_spacing_deg is None else {"site_spacing_deg": float(site_spacing_deg)}
+    # the digest holds only the parameters given, so that the examples written before stay fresh
+    mission_doc = {"seed": int(seed), "sites": int(sites), "layout": layout, **extra,
+                   **({} if site_half_width_s is None else {"site_half_width_s": float(site_half_width_s)})}
     mission_digest = parts.digest(mission_doc)
     mdir = root / "mission"
     if parts.fresh("mission", mission_digest):
@@ -239,7 +246,8 @@ def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = F
         bm = open_block_mission(mdir)
         parts.reuse("mission")
     else:
-        bm = write_block_mission(mdir, seed=seed, sites=sites, layout=layout)
+        bm = write_block_mission(mdir, seed=seed, sites=sites, site_half_width_s=site_half_width_s, layout=layout,
+                                 **extra)
         parts.done("mission", mission_digest, [mdir / f for f in _mission_files(bm)])
     use = list(bm.image_names) if names is None else list(names)
     if full_size:

@@ -301,14 +301,32 @@ def _source_of(path: str, size: int, mtime: int) -> Any:
         raise WorkflowError(f"image {path} is not readable: {err}") from None
 
 
-def _windowed(pixels: str, saturation: float | None, pyramid: Done | None) -> Any:
+def _windowed(store: Store, name: str, pixels: str, digest: str, params: Any, pyramid: Done | None) -> Any:
     """The image as the matcher reads it: by window, with its stored pyramid (cached per process; the
-    cached objects hold no pixels, the region cache of :mod:`lunarmap.matching.windowed` is bounded in bytes)."""
-    return _windowed_of(*_stamp(pixels), saturation, pyramid.path if pyramid is not None else None)
+    cached objects hold no pixels, the region cache of :mod:`lunarmap.matching.windowed` is bounded in bytes).
+
+    A pyramid store that went missing or was damaged since its step ran is computed again (logged).
+    """
+    from ..errors import PyramidError
+
+    sat = params.match.saturation
+    if pyramid is None:
+        return _windowed_of(*_stamp(pixels), sat, None, 0, 0)
+    try:
+        return _windowed_of(*_stamp(pixels), sat, *_stamp(pyramid.path))
+    except (OSError, PyramidError) as err:
+        import logging
+
+        logging.getLogger(__name__).warning("%s: computing its pyramid again: %s", name, err)
+        Path(pyramid.path).unlink(missing_ok=True)
+        _windowed_of.cache_clear()
+        again = pyramid_step(store, pyramid.key, name, pixels, params.match.pyramid_levels, sat, digest)
+        return _windowed_of(*_stamp(pixels), sat, *_stamp(again.path))
 
 
 @functools.lru_cache(maxsize=64)
-def _windowed_of(path: str, size: int, mtime: int, saturation: float | None, pyramid: str | None) -> Any:
+def _windowed_of(path: str, size: int, mtime: int, saturation: float | None, pyramid: str | None,
+                 pyramid_size: int, pyramid_mtime: int) -> Any:
     from ..io.pyramid import Pyramid
     from ..matching.windowed import WindowedImage
 
@@ -385,6 +403,10 @@ def image_steps(store: Store, job: ImageJob, metakernel: str, heights: tuple[flo
     """One task per image: its ISD, footprints, RFM, pyramid and interest points, each stored under its own
     key (a rerun or a resumed run computes only the missing ones)."""
     isd = isd_step(store, job.isd_key, job.name, job.label, metakernel)
+    cam, src = _camera(isd), _source(job.pixels)
+    if tuple(src.shape) != (int(cam.n_lines), int(cam.n_samples)):
+        raise WorkflowError(f"image {job.name}: its pixels {job.pixels} are {src.shape[0]} x {src.shape[1]}, its "
+                            f"label {job.label} says {int(cam.n_lines)} x {int(cam.n_samples)} (lines x samples)")
     feet = footprint_step(store, job.footprint_key, isd, heights)
     records = [isd]
     if job.rpc_key is not None and rpc_height_range is not None:
@@ -404,19 +426,20 @@ class MatchJob:
     isds: tuple[Done, Done]
     pyramids: tuple[Done, Done]
     points: Done
+    digests: tuple[str, str] = ("", "")
 
 
 def match_batch(store: Store, jobs: Sequence[MatchJob], dtm: str | None, params: Any,
                 min_overlap: float) -> list[Done]:
     """Several pairs in one task (the graph stays small: about one match task per image)."""
-    return [match_step(store, j.key, j.pair, j.pixels, j.isds, j.pyramids, j.points, dtm, params, min_overlap)
-            for j in jobs]
+    return [match_step(store, j.key, j.pair, j.pixels, j.isds, j.pyramids, j.points, dtm, params, min_overlap,
+                       j.digests) for j in jobs]
 
 
 @_one_blas_thread
 def match_step(store: Store, key: str, pair: tuple[str, str], pixels: tuple[str, str], isds: tuple[Done, Done],
                pyramids: tuple[Done | None, Done | None], points: Done, dtm: str | None, params: Any,
-               min_overlap: float) -> Done:
+               min_overlap: float, digests: tuple[str, str] = ("", "")) -> Done:
     """Matches of one image pair (prediction, pyramid NCC, LSM, RANSAC), or a skip when they do not overlap.
 
     Both images are read by window through their stored pyramids (:mod:`lunarmap.matching.windowed`):
@@ -443,10 +466,9 @@ def match_step(store: Store, key: str, pair: tuple[str, str], pixels: tuple[str,
         note = f"skipped: {frac:.0%} of {pair[0]} is seen by {pair[1]} (< {min_overlap:.0%})"
         path = store.write("match", key, "npz", lambda tmp: _savez(tmp, note=np.array(note), n=np.array(0)))
         return Done("match", key, item, str(path), True, time.perf_counter() - t, note)
-    sat = params.match.saturation
     try:
-        img_a = _windowed(pixels[0], sat, pyramids[0])
-        img_b = _windowed(pixels[1], sat, pyramids[1])
+        img_a = _windowed(store, pair[0], pixels[0], digests[0], params, pyramids[0])
+        img_b = _windowed(store, pair[1], pixels[1], digests[1], params, pyramids[1])
         pts = _load_points(points)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

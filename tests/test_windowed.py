@@ -1,0 +1,248 @@
+"""Pixels by window (issue 25): window sources of every image format, stored pyramids, the matcher on
+windowed images (the same matches as on whole images in memory), a bounded pixel cache, per-pair thinning."""
+
+from __future__ import annotations
+
+import pickle
+import warnings
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from lunarmap.errors import ImageWindowError, InvalidInputError, PyramidError
+from lunarmap.io import write_cube
+from lunarmap.io.pyramid import Pyramid, pyramid_shapes, write_pyramid
+from lunarmap.io.window import ArraySource, PixelSource, open_source
+from lunarmap.matching import MatchParams, TiePointParams, foerstner, match_points
+from lunarmap.matching.pyramid import build_pyramid
+from lunarmap.matching.resample import bicubic, bicubic_with_gradient, bilinear
+from lunarmap.matching.thinning import thin_points
+from lunarmap.matching.tiepoints import match_pair
+from lunarmap.matching.windowed import WindowedImage, cache_info, set_cache_bytes
+from lunarmap.simulate import render_image, stereo_pair, synthetic_scene
+
+
+def _image(shape=(157, 211), seed=0, integer=False):
+    rng = np.random.default_rng(seed)
+    a = rng.normal(100.0, 30.0, shape)
+    return np.round(a) if integer else a
+
+
+# -- window sources ----------------------------------------------------------------------------
+
+def _pds3(path, data):
+    lines, samples = data.shape
+    record = samples * 2
+    label = ("PDS_VERSION_ID = PDS3\r\nRECORD_TYPE = FIXED_LENGTH\r\nRECORD_BYTES = %d\r\n^IMAGE = 3\r\n"
+             "OBJECT = IMAGE\r\n  LINES = %d\r\n  LINE_SAMPLES = %d\r\n  SAMPLE_TYPE = LSB_INTEGER\r\n"
+             "  SAMPLE_BITS = 16\r\n  MISSING_CONSTANT = -32768\r\nEND_OBJECT = IMAGE\r\nEND\r\n") % (record, lines, samples)
+    path.write_bytes(label.encode().ljust(2 * record, b" ") + data.astype("<i2").tobytes())
+
+
+def _geotiff(rasterio, path, data):
+    with rasterio.open(path, "w", driver="GTiff", width=data.shape[1], height=data.shape[0], count=1,
+                       dtype="int16", nodata=-32768, tiled=True, blockxsize=64, blockysize=64) as ds:
+        ds.write(data.astype(np.int16), 1)
+
+
+def test_every_format_reads_by_window_what_an_independent_reader_sees(tmp_path):
+    truth = _image(integer=True)
+    truth[10, 20] = np.nan
+    stored = np.where(np.isnan(truth), -32768, truth)
+    files = {}
+    files["cube"] = write_cube(tmp_path / "a.cub", truth, pixel_type="SignedWord", tile=(32, 48))
+    _pds3(tmp_path / "a.img", stored)
+    files["pds3"] = tmp_path / "a.img"
+    xr.DataArray(truth.astype(np.float32), dims=("line", "sample"), name="dn").to_netcdf(tmp_path / "a.nc")
+    files["netcdf"] = tmp_path / "a.nc"
+    rasterio = pytest.importorskip("rasterio")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")                    # NotGeoreferencedWarning: a plain image
+        _geotiff(rasterio, tmp_path / "a.tif", stored)
+    files["geotiff"] = tmp_path / "a.tif"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with rasterio.open(files["geotiff"]) as ds:        # GDAL: the independent reader
+            raw = ds.read(1).astype(float)
+    gdal = np.where(raw == -32768, np.nan, raw)
+    np.testing.assert_array_equal(gdal, truth)
+    for kind, path in files.items():
+        src = PixelSource(path)
+        assert src.shape == truth.shape, kind
+        for l0, l1, s0, s1 in ((0, 157, 0, 211), (5, 40, 17, 200), (100, 157, 0, 1), (10, 11, 20, 21)):
+            np.testing.assert_array_equal(src.read(l0, l1, s0, s1), truth[l0:l1, s0:s1], err_msg=kind)
+        again = pickle.loads(pickle.dumps(src))          # by path: each process opens the file itself
+        assert again._handle is None
+        np.testing.assert_array_equal(again.read(3, 9, 4, 90), truth[3:9, 4:90], err_msg=kind)
+
+
+def test_windows_outside_and_damaged_files_are_named(tmp_path):
+    truth = _image((64, 80), integer=True)
+    path = write_cube(tmp_path / "a.cub", truth, pixel_type="SignedWord", tile=(16, 16))
+    src = PixelSource(path)
+    for window in ((0, 65, 0, 10), (-1, 3, 0, 10), (5, 5, 0, 10), (0, 10, 70, 81)):
+        with pytest.raises(ImageWindowError, match="outside"):
+            src.read(*window)
+    with pytest.raises(ImageWindowError, match="does not exist"):
+        PixelSource(tmp_path / "missing.cub")
+    blob = path.read_bytes()
+    (tmp_path / "short.cub").write_bytes(blob[:len(blob) - 2000])   # smaller than its label says
+    with pytest.raises(ImageWindowError, match="short.cub"):
+        PixelSource(tmp_path / "short.cub").read(0, 64, 0, 80)
+    (tmp_path / "junk.nc").write_bytes(b"CDF\x01" + b"\0" * 50)
+    with pytest.raises(ImageWindowError, match="junk.nc"):
+        PixelSource(tmp_path / "junk.nc")
+    with pytest.raises(ImageWindowError, match="2-D"):
+        ArraySource(np.zeros(5))
+
+
+# -- pyramids --------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("integer", [True, False])
+def test_stored_pyramid_is_build_pyramid_of_the_masked_image(tmp_path, integer):
+    img = _image((1237, 333), integer=integer)
+    img[5, 7] = np.nan
+    img[900:903, 100:104] = 260.0                     # saturated
+    p = write_pyramid(ArraySource(img), tmp_path / "p.nc", 4, saturation=250.0, stripe_lines=100)
+    py = Pyramid(p, shape=img.shape)
+    ref = build_pyramid(np.where(img >= 250.0, np.nan, img), 4)
+    assert py.levels == 4 == len(ref) - 1 and [s for s in pyramid_shapes(img.shape, 9)][:4] == [r.shape for r in ref[1:]]
+    for k in range(1, 5):
+        lev = py.level(k)
+        got = lev.read(0, lev.shape[0], 0, lev.shape[1])
+        if integer:       # means of integers are exact in float32 at these levels
+            np.testing.assert_array_equal(got, ref[k])
+        else:
+            np.testing.assert_allclose(got, ref[k], rtol=1e-7, atol=0)
+            assert np.array_equal(np.isnan(got), np.isnan(ref[k]))
+
+
+def test_pyramid_of_another_image_or_damaged_is_refused(tmp_path):
+    img = _image((200, 150))
+    p = write_pyramid(ArraySource(img), tmp_path / "p.nc", 3, digest="abc")
+    Pyramid(p, shape=(200, 150), digest="abc")
+    with pytest.raises(PyramidError, match="150"):
+        Pyramid(p, shape=(201, 150))
+    with pytest.raises(PyramidError, match="another image"):
+        Pyramid(p, digest="xyz")
+    (tmp_path / "cut.nc").write_bytes(p.read_bytes()[:3000])
+    with pytest.raises(PyramidError, match="cut.nc"):
+        Pyramid(tmp_path / "cut.nc")
+    with pytest.raises(PyramidError, match="does not exist"):
+        Pyramid(tmp_path / "none.nc")
+
+
+# -- the resamplers on windowed images ------------------------------------------------------------
+
+def test_resamplers_give_the_whole_images_values_bit_for_bit():
+    rng = np.random.default_rng(4)
+    img = _image((300, 260))
+    img[40:44, 50:53] = np.nan
+    win = WindowedImage(img)
+    # points everywhere: inside, on integer coordinates, at and beyond the edges, NaN
+    line = np.concatenate([rng.uniform(-3, 303, 4000), np.arange(0, 300.5, 0.5), [np.nan, 1.5, 299.5]])
+    sample = np.concatenate([rng.uniform(-3, 263, 4000), np.linspace(0, 260, 601), [3.0, np.nan, 259.5]])
+    windows = (line[:, None, None] + np.arange(-3, 4)[None, :, None], sample[:, None, None] + np.arange(-3, 4))
+    for fn in (bilinear, bicubic, bicubic_with_gradient):
+        for args in ((line, sample), windows):
+            a, b = fn(img, *args), fn(win, *args)
+            for x, y in zip(a if isinstance(a, tuple) else (a,), b if isinstance(b, tuple) else (b,)):
+                assert np.array_equal(x, y, equal_nan=True), fn.__name__
+    assert bilinear(win, 10.2, 20.7) == bilinear(img, 10.2, 20.7)        # 0-d in, 0-d out
+
+
+@pytest.fixture(scope="module")
+def pair():
+    dtm, alb = synthetic_scene(30.0, 0.0, 250.0, 0.5, seed=3)
+    c1, c2 = stereo_pair("linescan", 10.0, n_lines=200, n_samples=200)
+    i1 = render_image(c1, dtm, alb, noise_sigma=2.0, sun="eo", seed=1).values.astype(float)
+    i2 = render_image(c2, dtm, alb, noise_sigma=2.0, sun="eo", seed=2).values.astype(float)
+    i2[50:53, 60:70] = np.nan                             # invalid pixels
+    i1[150:152, 20:24] = 300.0                            # saturated pixels
+    return c1, c2, i1, i2
+
+
+@pytest.mark.parametrize("search", [12.0, 40.0])          # 40: the pair's common offset is measured first
+def test_matching_windowed_images_gives_the_in_memory_matches(pair, tmp_path, search):
+    c1, c2, i1, i2 = pair
+    pts = foerstner(i1, cell=12, per_cell=1)
+    p = MatchParams(search=search, bias_sample=16, local_search=8.0, saturation=255.0)
+    from lunarmap.matching.pairs import as_array
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ref = match_points(as_array(i1, "a", 255.0), as_array(i2, "b", 255.0), c1, c2, pts.line, pts.sample,
+                           params=p)
+    assert ref.ok.sum() > 150
+    # derived pyramid levels (block means of level-0 windows): bit for bit
+    w = match_points(WindowedImage(i1, 255.0), WindowedImage(i2, 255.0), c1, c2, pts.line, pts.sample, params=p)
+    for k in ("line2", "sample2", "sigma_line", "sigma_sample", "correlation", "status"):
+        assert np.array_equal(getattr(ref, k), getattr(w, k), equal_nan=True), k
+    # pyramids stored as float32 on disk: the same matches within 1e-6 px
+    stores = [Pyramid(write_pyramid(ArraySource(im), tmp_path / f"{n}{search}.nc", 4, saturation=255.0))
+              for n, im in (("a", i1), ("b", i2))]
+    s = match_points(WindowedImage(i1, 255.0, pyramid=stores[0]), WindowedImage(i2, 255.0, pyramid=stores[1]), c1,
+                     c2, pts.line, pts.sample, params=p)
+    assert np.array_equal(ref.status, s.status)
+    assert np.nanmax(np.abs(ref.line2 - s.line2)) < 1e-6 and np.nanmax(np.abs(ref.sample2 - s.sample2)) < 1e-6
+
+
+def test_the_pixel_cache_stays_within_its_bytes_and_changes_no_result(pair):
+    c1, c2, i1, i2 = pair
+    pts = foerstner(i1, cell=12, per_cell=1)
+    p = MatchParams(search=12.0)
+    full = match_points(WindowedImage(i1), WindowedImage(i2), c1, c2, pts.line, pts.sample, params=p)
+    before = cache_info()["max_bytes"]
+    try:
+        set_cache_bytes(150_000)                       # smaller than one image: regions are evicted
+        a, b = WindowedImage(i1), WindowedImage(i2)
+        small = match_points(a, b, c1, c2, pts.line, pts.sample, params=p)
+        info = cache_info()
+        assert info["bytes"] <= 150_000 or info["regions"] == 1
+        assert np.array_equal(full.line2, small.line2, equal_nan=True)
+        with pytest.raises(InvalidInputError):
+            set_cache_bytes(-1)
+    finally:
+        set_cache_bytes(before)
+
+
+# -- thinning -----------------------------------------------------------------------------------
+
+def test_thinning_keeps_the_strongest_point_per_cell_inside_the_overlap(pair):
+    c1, c2, i1, i2 = pair
+    rng = np.random.default_rng(2)
+    line, sample = rng.uniform(0, 200, 5000), rng.uniform(0, 200, 5000)
+    strength = rng.uniform(0, 1, 5000)
+    keep = thin_points(line, sample, strength, 100, cell=8.0)
+    assert 50 <= keep.size <= 100 and np.all(np.diff(keep) > 0)
+    # one point per cell of the chosen size, each the strongest of its cell
+    for size in 8.0 * 2.0 ** (np.arange(12) / 2.0):
+        cells = (line // size).astype(int) * 1000 + (sample // size).astype(int)
+        if np.unique(cells).size <= 100:
+            break
+    assert np.unique(cells[keep]).size == keep.size == np.unique(cells).size
+    for k in keep[:20]:
+        assert strength[k] == strength[cells == cells[k]].max()
+    assert np.array_equal(keep, thin_points(line, sample, strength, 100, cell=8.0))     # deterministic
+    # with the sensors: only points image 2 can see. Pretend image 2 has half its samples: the kept points
+    # are those predicted inside it, plus the edge cells' (the overlap test is cell by cell, 6.25 px cells)
+    g = c1.image_to_ground(line, sample, height=0.0, on_miss="nan")
+    l2, s2 = (np.asarray(v) for v in c2.ground_to_image(g, on_miss="nan"))
+    inside = thin_points(line, sample, strength, 10_000, c1, c2, (200, 200), (200, 100), 0.0, cell=8.0)
+    kept = np.zeros(line.size, bool)
+    kept[inside] = True
+    assert kept[(s2 > 2) & (s2 < 90) & (l2 > 2) & (l2 < 198)].all()       # all seen well inside are kept
+    assert not kept[s2 > 120].any() and kept.sum() < 0.7 * line.size     # none far outside
+    with pytest.raises(InvalidInputError):
+        thin_points(line, sample, strength, 0)
+
+
+def test_match_pair_thins_to_max_points_and_keeps_the_rows_of_every_point(pair):
+    c1, c2, i1, i2 = pair
+    pts = foerstner(i1, cell=8, per_cell=2)
+    params = TiePointParams(match=MatchParams(search=12.0), max_points=60)
+    m = match_pair(i1, i2, c1, c2, pts, 0.0, params, "pair")
+    assert m.line1.size == pts.line.size and m.meta["thinned"] >= pts.line.size - 60
+    assert np.count_nonzero(m.status != 6) <= 60 and m.ok.sum() >= 30
+    np.testing.assert_array_equal(m.line1, pts.line)
