@@ -58,16 +58,27 @@ def test_full_size_layout_geometry():
         seen = np.zeros(len(pts), bool)
         for o in other:
             seen |= _inside(quads[o.name], pts)
-        assert seen.mean() > 0.8, (im.name, seen.mean())      # most of it (88-100 %) is seen from the other orbit
-    # NAC-L (east) and NAC-R (west) of one strip overlap by ~70 m (140 px) at both ends; the strips overlap
-    # along track by 5 % of an image
+        assert seen.mean() > 0.6, (im.name, seen.mean())      # most of it (70-100 %) is seen from the other orbit
+        # the orbits' strips are staggered: orbit 1's strip b and orbit 2's strip a straddle the other's seam,
+        # so the four strips of a camera form one chain of cross-orbit overlaps
+        if im.kind.endswith("_b" if im.orbit == 1 else "_a"):
+            for strip in "ab":
+                twin = f"orbit{3 - im.orbit}_{im.kind[:4]}_{strip}"
+                assert _inside(quads[twin], pts).mean() > 0.05, (im.name, twin)
+    # NAC-L (east) and NAC-R (west) of one strip overlap by ~70 m (140 px) at both ends
     for o in (1, 2):
         for s in "ab":
             left, right = quads[f"orbit{o}_nacl_{s}"], quads[f"orbit{o}_nacr_{s}"]
             for lc, rc in ((0, 1), (3, 2)):      # inner corners: south, north
                 assert 40.0 < right[rc, 0] - left[lc, 0] < 120.0, (o, s, right[rc, 0] - left[lc, 0])
-        a, b = quads[f"orbit{o}_nacl_a"], quads[f"orbit{o}_nacl_b"]
-        assert 800.0 < min(a[2, 1], a[3, 1]) - max(b[0, 1], b[1, 1]) < 1800.0
+    # no two images of one camera on one orbit share an exposure time (they would see the same ground from
+    # the same place: no parallax); strip b starts a line after strip a ends
+    for a in m.images:
+        for b in m.images:
+            if a.name < b.name and a.camera == b.camera and a.orbit == b.orbit:
+                first, second = sorted((a, b), key=lambda im: im.planned_start_et)
+                gap = second.planned_start_et - (first.planned_start_et + first.duration)
+                assert 0.5 * first.line_time < gap < 2.0 * first.line_time
     # 0.5 m pixels, ~20 degrees of cross-orbit convergence at the site
     geo = block_module.block_geometry(m)
     assert all(0.48 < g["gsd_m"] < 0.52 for g in geo["images"].values())

@@ -1,6 +1,6 @@
 """An albedo defined everywhere around a site without a raster of the site: two periodic textures, summed.
 
-A raster albedo at 0.5 m (:func:`~lunarmap.simulate.synthetic_albedo`) over the ~52 km x 7 km that
+A raster albedo at 0.5 m (:func:`~lunarmap.simulate.synthetic_albedo`) over the ~58 km x 6 km that
 eight full-size NAC-like images cover would hold 1.5 G nodes. :class:`TiledAlbedo` instead sums two
 periodic, band-limited textures (each a square tile of ``n x n`` nodes, generated once from the seed
 by FFT filtering of white noise, so it wraps without a seam), laid over the ground in the site's

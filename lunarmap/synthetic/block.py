@@ -78,7 +78,7 @@ __all__ = [
     "MIN_SLEW_S", "MULTI_SITE_NAVIGATION", "image_name", "image_footprint",
     "SITE_TRACK_OFFSET_M", "PASS_HALF_WIDTH", "BLOCK_ORBITS", "PUSHBROOM_LINES", "FRAME_ADVANCE",
     "TRUTH_SPK_STEP", "TRUTH_CK_STEP", "NAV_SPK_STEP", "NAV_CK_STEP", "SPK_MARGIN", "LAYOUTS",
-    "FULL_SIZE_STRIP_OVERLAP", "FULL_SIZE_ORBITS",
+    "FULL_SIZE_ORBIT_STAGGER", "FULL_SIZE_ORBITS",
 ]
 
 #: Default site latitude, degrees (planetocentric).
@@ -124,8 +124,10 @@ MULTI_SITE_NAVIGATION = NavigationErrorSpec(position_drift_m_per_s=(0.02, 0.1),
 #: Image layouts: ``"block"`` (four ~1 m-pixel images of three cameras per pass, the default) and
 #: ``"full_size"`` (full-size LRO-NAC-like NAC-L and NAC-R images, two along-track strips per pass).
 LAYOUTS = ("block", "full_size")
-#: Along-track overlap of the two strips of a pass in the full-size layout, fraction of an image.
-FULL_SIZE_STRIP_OVERLAP = 0.05
+#: Along-track shift between the strips of consecutive orbits in the full-size layout, fraction of an image.
+#: The two strips of one pass follow each other without overlap (an overlap would be the same exposures
+#: twice: rays from the same place, no parallax), so the other orbit's strips straddle their seam.
+FULL_SIZE_ORBIT_STAGGER = 0.2
 #: Default orbits of the full-size layout.
 FULL_SIZE_ORBITS = 2
 
@@ -583,9 +585,10 @@ def build_block_model(seed: int = 0, *, orbits: int = BLOCK_ORBITS, site_latitud
         ``"block"`` (default): per pass the NAC-like, TC-like and two frame images of ~1 m pixels.
         ``"full_size"`` (one site): per pass four full-size LRO-NAC-like images (52,224 lines x
         5,064 samples, ~0.5 m pixels), NAC-L and NAC-R side by side (their footprints overlap by
-        ~100 pixels) in two along-track strips overlapping by :data:`FULL_SIZE_STRIP_OVERLAP`; the
-        bus +z axis (between the two NACs) is pointed at the site, which lies where the four images
-        of a pass meet. Names ``orbit<k>_nacl_a``, ``orbit<k>_nacr_a``, ``orbit<k>_nacl_b``,
+        ~140 pixels) in two along-track strips that follow each other (one line apart); the strips
+        of consecutive orbits are shifted along track by :data:`FULL_SIZE_ORBIT_STAGGER` of an image,
+        so that every strip overlaps both strips of the other orbit. The bus +z axis (between the
+        two NACs) is pointed at the site at each pass's reference epoch. Names ``orbit<k>_nacl_a``, ``orbit<k>_nacr_a``, ``orbit<k>_nacl_b``,
         ``orbit<k>_nacr_b`` (``a``: the earlier, southern strip of the northbound pass).
 
     Returns
@@ -739,12 +742,15 @@ def _plan_full_size(model: BlockModel) -> list[BlockImagePlan]:
     out = []
     for k in range(1, model.orbits + 1):
         p = model.pass_of(k, 1)
-        # the strips' centre times: the pass's reference (the bus axis on the site) -/+ half a strip
-        # less half the overlap; the line time of the first camera at the reference keeps both the same
+        # the strips' centre times: the pass's reference (the bus axis on the site) -/+ half a strip and
+        # half a line (strip b starts one line after strip a ends), plus this orbit's stagger; the line
+        # time of the first camera at the reference serves both cameras
         nacl = model.cameras[0]
         lt = _pushbroom_line_time(model, nacl, p.epoch)
-        shift = 0.5 * FULL_NAC_LINES * lt * (1.0 - FULL_SIZE_STRIP_OVERLAP)
-        for strip, centre in (("a", p.epoch - shift), ("b", p.epoch + shift)):
+        duration = FULL_NAC_LINES * lt
+        stagger = (k - 0.5 * (model.orbits + 1)) * FULL_SIZE_ORBIT_STAGGER * duration
+        shift = 0.5 * (duration + lt)
+        for strip, centre in (("a", p.epoch + stagger - shift), ("b", p.epoch + stagger + shift)):
             for cam in model.cameras:
                 kind = f"{cam.kind}_{strip}"
                 out.append(BlockImagePlan(image_name(1, k, kind, 1), cam, k, kind, FULL_NAC_LINES, centre, lt, None, 1))

@@ -15,7 +15,7 @@ sites hundreds of kilometres apart): tie points are predicted at height 0.
 
 With ``full_size=True`` the mission is the full-size layout (``write_block_mission(layout="full_size")``:
 eight LRO-NAC-like images of 52,224 x 5,064 pixels, NAC-L and NAC-R in two along-track strips on two
-orbits), rendered by the compiled renderer into UnsignedByte ISIS cubes (``mission/<image>.cub``,
+orbits, staggered), rendered by the compiled renderer into UnsignedByte ISIS cubes (``mission/<image>.cub``,
 :func:`lunarmap.simulate.render_block_cubes`); control and check points are drawn per pair of
 cross-orbit images of one camera and strip (no point is seen by all eight), navigation groups are per
 (orbit, camera).
