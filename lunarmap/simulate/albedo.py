@@ -1,7 +1,7 @@
 """An albedo defined everywhere around a site without a raster of the site: two periodic textures, summed.
 
 A raster albedo at 0.5 m (:func:`~lunarmap.simulate.synthetic_albedo`) over the ~58 km x 6 km that
-eight full-size NAC-like images cover would hold 1.5 G nodes. :class:`TiledAlbedo` instead sums two
+eight full-size NAC-like images cover would hold 1.4 G nodes. :class:`TiledAlbedo` instead sums two
 periodic, band-limited textures (each a square tile of ``n x n`` nodes, generated once from the seed
 by FFT filtering of white noise, so it wraps without a seam), laid over the ground in the site's
 local east/north metres at two different angles and of two different periods. The sum has the

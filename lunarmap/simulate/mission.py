@@ -30,7 +30,7 @@ conjugates of a 40-degree pair correlated at 0.79 (1 ray per pixel) or 0.91
 (2 x 2 rays); with it, at 0.96 either way.
 
 The full-size layout's site (``write_block_mission(layout="full_size")``, ~6 km x 58 km under
-~0.5 m pixels) cannot hold such rasters (a 0.5 m albedo would have 1.3 G nodes): its DTM has
+~0.5 m pixels) cannot hold such rasters (a 0.5 m albedo would have 1.4 G nodes): its DTM has
 4 m spacing (1,526 x 14,501 nodes, 177 MB as netCDF; rolling terrain of 3 m RMS down to 80 m
 wavelength, craters 32 m to 400 m) and its albedo is a
 :class:`~lunarmap.simulate.albedo.TiledAlbedo` at half the scales above (features down to 1.5 m,
