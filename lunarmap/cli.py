@@ -1,7 +1,8 @@
 """The ``lunarmap`` command line.
 
-``lunarmap isd LABEL --kernels META_KERNEL [-o FILE]``
-    write the CSM image support data (ALE ISD layout) of one image.
+``lunarmap isd LABEL --kernels META_KERNEL [-o FILE] [--csm]``
+    write the CSM image support data (ALE ISD layout) of one image; ``--csm``: with a distortion model
+    usgscsm applies (a fitted transverse polynomial for the Apollo metric and Lunar Orbiter cameras).
 ``lunarmap run CONFIG [--scheduler ADDRESS] [--workers N] [--serial]``
     the whole chain of a run configuration (TOML, see :mod:`lunarmap.workflows.config`) as one dask
     graph: ISDs, RPCs, tie points, adjustment, adjusted kernels, report; resumable.
@@ -29,6 +30,14 @@ def _cmd_isd(args: argparse.Namespace) -> int:
     from .orientation.drivers import image_support
 
     isd = image_support(args.label, args.kernels)
+    if args.csm:
+        from .camera.csm import csm_image_support
+
+        isd = csm_image_support(isd)
+        fit = isd.provenance.get("csm_distortion")
+        if fit:
+            print(f"--csm: {fit['replaced']} distortion replaced by {fit['by']}: {fit['fit_rms_px']:.2g} px RMS, "
+                  f"{fit['fit_max_px']:.2g} px max ({fit['check_grid']} check grid)", file=sys.stderr)
     if args.output:
         isd.write_json(args.output)
         print(f"wrote {args.output}", file=sys.stderr)
@@ -128,6 +137,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("label", help="ISIS cube or label, or PDS3 label")
     p.add_argument("--kernels", "-k", required=True, help="meta-kernel (.tm)")
     p.add_argument("--output", "-o", help="output JSON file (default: standard output)")
+    p.add_argument("--csm", action="store_true",
+                   help="write a distortion model usgscsm applies: Apollo metric and Lunar Orbiter distortions become "
+                        "the usgscsm model fitted to them best (transverse or radtan; the fit error is printed and "
+                        "kept in the ISD)")
     p.set_defaults(func=_cmd_isd)
     r = sub.add_parser("run", help="run the whole chain of a configuration (TOML) as one dask graph")
     r.add_argument("config", nargs="?", help="run configuration (TOML)")

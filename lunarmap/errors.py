@@ -46,6 +46,7 @@ __all__ = [
     "AdjustmentDivergedError",
     "NetworkFormatError",
     "IsdFormatError",
+    "IsdConventionWarning",
     "OrientationKernelError",
     "OrientationCoverageError",
     "OrientationConflictError",
@@ -232,6 +233,15 @@ class IsdFormatError(LunarmapError, ValueError):
 
     Malformed JSON, a missing key, a wrong type or shape, a non-finite number,
     an unknown ``name_model`` or distortion model.
+    """
+
+
+class IsdConventionWarning(LunarmapWarning):
+    """An ISD follows a convention lunarmap reads the way usgscsm does, which a user should know.
+
+    E.g. a camera whose boresight points away from the body: usgscsm intersects the whole line of
+    sight, in either direction, so such ISDs (its own test ISDs) image the body behind the camera;
+    lunarmap reads them looking the other way, as usgscsm sees them.
     """
 
 

@@ -97,8 +97,13 @@ def test_none_is_identity_and_copies() -> None:
 
 
 def test_registry_and_errors() -> None:
+    from lunarmap.orientation.distortion_schema import DISTORTION_SCHEMAS
+
     assert set(DISTORTION_MODELS) == {"none", "lrolrocnac", "radial", "kaguyalism",
-                                      "lunarorbiter", "apollometric"}   # film cameras, issue 13
+                                      "lunarorbiter", "apollometric",   # film cameras, issue 13
+                                      "transverse", "radtan", "dawnfc", "kplo_shadowcam"}   # usgscsm's, issue 26
+    # the ISD reader validates blocks against the orientation-level schema: the same names
+    assert set(DISTORTION_SCHEMAS) == set(DISTORTION_MODELS)
     assert isinstance(make_distortion("LROLROCNAC", {"coefficients": [1e-5]}), LroNacDistortion)
     assert isinstance(make_distortion("radial", {"coefficients": [0.0, 1e-5]}), RadialDistortion)
     with pytest.raises(InvalidInputError, match="unknown distortion model"):

@@ -345,10 +345,16 @@ def test_lunar_orbiter_label_without_fiducials_is_refused(lo_set, tmp_path):
         image_support(label, lo_set / f"{lo_set.name}.tm")
 
 
-def test_lunar_orbiter_medium_camera_is_refused_by_name(lo_set, tmp_path):
+def test_lunar_orbiter_medium_camera_has_its_driver(lo_set, tmp_path):
+    # issue 26: the medium-resolution camera is no longer refused; a high-resolution label relabelled as
+    # the medium camera lacks the label boresight that camera's interior needs, and says so by name
+    from lunarmap.errors import LabelKeywordError
+    from lunarmap.orientation.drivers import LunarOrbiterMediumDriver
+
     label = _edited(lo_set / LO_LABEL, tmp_path, '"High Resolution Camera"', '"Medium Resolution Camera"')
-    with pytest.raises(UnknownInstrumentError, match="medium-resolution camera is not supported"):
-        driver_for(load_label(label), str(label))
+    assert isinstance(driver_for(load_label(label), str(label)), LunarOrbiterMediumDriver)
+    with pytest.raises(LabelKeywordError, match="BoresightLine"):
+        image_support(label, lo_set / f"{lo_set.name}.tm")
 
 
 def test_apollo_wrong_frame_code_is_named(apollo_set, tmp_path):

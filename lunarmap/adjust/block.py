@@ -27,7 +27,7 @@ import numpy as np
 import xarray as xr
 from numpy.typing import NDArray
 
-from ..camera.corrections import FrameCorrections, LineScanCorrections
+from ..camera.corrections import FrameCorrections, LineScanCorrections, PushFrameCorrections
 from ..camera.geodesy import enu_basis, xyz_to_lonlat_height
 from ..camera.sensor import SensorModel
 from ..errors import AdjustmentInputError, UnobservedParameterError
@@ -64,7 +64,7 @@ class NavigationSpec:
         Random (per image) attitude error, radians.
     position_rate_sigma, attitude_rate_sigma : float, optional
         Rate errors within one image (m/s, rad/s): sigma of the higher polynomial coefficients of
-        line-scan corrections, ``rate * t_half`` (half the image duration). ``None``: those
+        line-scan and push-frame corrections, ``rate * t_half`` (half the image duration). ``None``: those
         coefficients are not observed.
     offset, drift : str or sequence of 6 str
         Modes for ``[w_x, w_y, w_z, c_x, c_y, c_z]`` (attitude radians, position metres).
@@ -113,7 +113,7 @@ def navigation_observations(model: SensorImageModel, spec: NavigationSpec, names
             continue
         if isinstance(corr, FrameCorrections):
             sigma[i, :6] = [spec.attitude_sigma] * 3 + [spec.position_sigma] * 3
-        elif isinstance(corr, LineScanCorrections):
+        elif isinstance(corr, (LineScanCorrections, PushFrameCorrections)):   # time polynomials alike
             sigma[i, :6] = [spec.attitude_sigma] * 3 + [spec.position_sigma] * 3
             for k in range(1, corr.degree + 1):
                 if spec.attitude_rate_sigma is not None:

@@ -341,11 +341,13 @@ def selected_inverse(S: sp.spmatrix, sym: SymbolicFactor, want_rows: NDArray[np.
             Lrj = sla.solve_triangular(Ljj, F[nj:, :nj].T, lower=True, check_finite=False).T
             L_RJ[k] = Lrj
             if sym.sn_parent[k] >= 0:
-                U = F[nj:, nj:]
-                U -= Lrj @ Lrj.T
+                # a copy of the update block, not a view: the front (m x m) is freed now, not when the
+                # parent is assembled (the pending fronts were most of the peak memory)
+                U = F[nj:, nj:] - Lrj @ Lrj.T
                 updates[k] = U
         else:
             L_RJ[k] = np.zeros((0, nj))
+        del F
     # --- wanted entries, grouped by the supernode of the lower-numbered (new) index --------------------
     wr = iperm[np.asarray(want_rows, np.int64)]
     wc = iperm[np.asarray(want_cols, np.int64)]
@@ -363,6 +365,7 @@ def selected_inverse(S: sp.spmatrix, sym: SymbolicFactor, want_rows: NDArray[np.
     worst = 0.0
     for k in range(n_sn - 1, -1, -1):
         Ljj, Lrj = L_JJ[k], L_RJ[k]
+        L_JJ[k] = L_RJ[k] = None                 # the factor is freed as the walk goes down
         nj = Ljj.shape[0]
         front = fronts[k]
         Linv = sla.solve_triangular(Ljj, np.eye(nj), lower=True, check_finite=False)

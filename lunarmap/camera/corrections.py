@@ -52,7 +52,7 @@ try:  # optional: the frame stack's per-observation algebra in two fused passes 
 except ImportError:  # pragma: no cover - exercised only without numba
     numba = None
 
-__all__ = ["FrameCorrections", "LineScanCorrections", "AffineCorrections", "AffineCorrectedSensor",
+__all__ = ["FrameCorrections", "LineScanCorrections", "PushFrameCorrections", "AffineCorrections", "AffineCorrectedSensor",
            "FrameStack", "pinhole_image"]
 
 Array = NDArray[np.float64]
@@ -389,14 +389,7 @@ class LineScanCorrections:
     """
 
     def __init__(self, camera: Any, degree: int = 1) -> None:
-        if degree not in (0, 1, 2):
-            raise InvalidInputError(f"line-scan correction degree must be 0, 1 or 2, got {degree!r}")
-        camera.distortion.undistort_jacobian(0.0, 0.0)
-        self.sensor = camera
-        self.degree = int(degree)
-        self.n_params = 6 * (self.degree + 1)
-        self.names = tuple(f"{q}{ax}_{k}" for k in range(self.degree + 1) for q in ("w", "c") for ax in "xyz")
-        self.units = tuple(u for _ in range(self.degree + 1) for u in _EO_UNITS)
+        _init_polynomial(self, camera, degree, "line-scan")
         t0, t1 = camera.image_time(np.array([0.0, float(camera.interior.n_lines)]))
         self.t_mid = 0.5 * float(t0 + t1)
         self.t_half = 0.5 * abs(float(t1 - t0))
@@ -477,10 +470,7 @@ class LineScanCorrections:
         t = self._solve_time(p, X)
         pix, dv, v, M, w, powers = self._geometry(p, X, t, True)
         d_x, d_c, d_w = _eo_partials(dv, v, M, w)
-        d_p = np.empty((n, 2, self.n_params))
-        for k in range(self.degree + 1):
-            d_p[:, :, 6 * k:6 * k + 3] = d_w * powers[:, k, None, None]
-            d_p[:, :, 6 * k + 3:6 * k + 6] = d_c * powers[:, k, None, None]
+        d_p = _polynomial_partials(d_w, d_c, powers)
         # implicit time: r(t, p, X) = 0
         plus = self._geometry(p, X, t + _DT, False)[0]
         minus = self._geometry(p, X, t - _DT, False)[0]
@@ -506,19 +496,141 @@ class LineScanCorrections:
         """
         p = _params(params, self.n_params, "LineScanCorrections")
         cam = self.sensor
-        eo = cam.eo
-        tau = self.tau(eo.times)
-        k = np.arange(self.degree + 1)
-        powers = tau[:, None] ** k[None, :]
-        dpow = np.where(k[None, :] > 0, k[None, :] * tau[:, None] ** np.maximum(k - 1, 0)[None, :], 0.0) \
-            / self.t_half
+        new = _polynomial_eo(cam.eo, p, self.degree, self.tau(cam.eo.times), self.t_half,
+                             f"line-scan EO corrections, degree {self.degree}")
+        return type(cam)(cam.interior, new, cam.shape, line_times=cam.line_times, workers=cam.workers)
+
+
+def _polynomial_eo(eo: ExteriorOrientation, p: Array, degree: int, tau: Array, t_half: float,
+                   note: str) -> ExteriorOrientation:
+    """The EO with polynomial corrections ``[w_k, c_k]`` in normalised time ``tau`` applied at its samples."""
+    k = np.arange(degree + 1)
+    powers = tau[:, None] ** k[None, :]
+    dpow = np.where(k[None, :] > 0, k[None, :] * tau[:, None] ** np.maximum(k - 1, 0)[None, :], 0.0) / t_half
+    P = p.reshape(degree + 1, 2, 3)
+    w = powers @ P[:, 0, :]
+    E = rotvec_to_matrix(w)
+    R = quat_to_matrix(eo.quaternions) @ np.swapaxes(E, -1, -2)
+    return _replace_eo(eo, eo.positions + powers @ P[:, 1, :], eo.velocities + dpow @ P[:, 1, :],
+                       matrix_to_quat(R), note)
+
+
+def _poly_names(degree: int, quantities: tuple[str, ...] = ("w", "c")) -> tuple[str, ...]:
+    return tuple(f"{q}{ax}_{k}" for k in range(degree + 1) for q in quantities for ax in "xyz")
+
+
+def _init_polynomial(corr: Any, camera: Any, degree: int, kind: str) -> None:
+    """What polynomial EO corrections (line scan, push frame) set up: degree, names, units, the sensor."""
+    if degree not in (0, 1, 2):
+        raise InvalidInputError(f"{kind} correction degree must be 0, 1 or 2, got {degree!r}")
+    camera.distortion.undistort_jacobian(0.0, 0.0)   # a model without partials fails here, by name
+    corr.sensor = camera
+    corr.degree = int(degree)
+    corr.n_params = 6 * (corr.degree + 1)
+    corr.names = _poly_names(corr.degree)
+    corr.units = tuple(u for _ in range(corr.degree + 1) for u in _EO_UNITS)
+
+
+def _polynomial_partials(d_w: Array, d_c: Array, powers: Array) -> Array:
+    """Partials ``(n, 2, 6 (degree + 1))`` of ``[w_k, c_k]`` from those of ``w``, ``c`` and ``tau^k``."""
+    n, degree1 = powers.shape
+    d_p = np.empty((n, 2, 6 * degree1))
+    for k in range(degree1):
+        d_p[:, :, 6 * k:6 * k + 3] = d_w * powers[:, k, None, None]
+        d_p[:, :, 6 * k + 3:6 * k + 6] = d_c * powers[:, k, None, None]
+    return d_p
+
+
+# -- push-frame cameras -------------------------------------------------------------------------
+
+class PushFrameCorrections:
+    """Position and attitude corrections of a :class:`~lunarmap.camera.PushFrameCamera`, polynomials in time.
+
+    The parameters are those of :class:`LineScanCorrections` (``[w_k, c_k]``, degree 0-2 in the
+    normalised framelet time ``tau`` in [-1, 1] over the image), evaluated at each framelet's
+    exposure time. A framelet is a frame exposure, so the partials are a frame camera's at that time:
+    no implicit time. A ground point goes to the framelet the corrected geometry sees it closest to the
+    centre line of (as :meth:`PushFrameCamera.ground_to_image` chooses), so the projection jumps by the
+    framelets' small disagreement where a point changes framelet.
+
+    Parameters
+    ----------
+    camera : PushFrameCamera
+        The reference camera.
+    degree : int
+        Polynomial degree 0, 1 or 2.
+    """
+
+    def __init__(self, camera: Any, degree: int = 1) -> None:
+        _init_polynomial(self, camera, degree, "push-frame")
+        t = camera.framelet_times
+        self.t_mid = 0.5 * float(t[0] + t[-1])
+        # one framelet spans no time: normalise by the interframe delay instead
+        self.t_half = max(0.5 * float(t[-1] - t[0]), float(camera.timing.interframe_delay))
+        self._A, self._b = _pixel_affine(camera.interior)
+        self._sign = -1.0 if camera.timing.framelets_flipped else 1.0
+
+    def __repr__(self) -> str:
+        return f"PushFrameCorrections({self.sensor!r}, degree={self.degree})"
+
+    def tau(self, t: ArrayLike) -> Array:
+        """Normalised time (-1 .. 1 over the framelets) of times ``t`` (s after ``eo.epoch``)."""
+        return (np.asarray(t, dtype=float) - self.t_mid) / self.t_half
+
+    def _sensor_vectors(self, p: Array, X: Array, j: NDArray[np.intp]) -> tuple[Array, Array, Array, Array]:
+        cam = self.sensor
+        powers = self.tau(cam.framelet_times[j])[:, None] ** np.arange(self.degree + 1)[None, :]
         P = p.reshape(self.degree + 1, 2, 3)
         w = powers @ P[:, 0, :]
-        E = rotvec_to_matrix(w)
-        R = quat_to_matrix(eo.quaternions) @ np.swapaxes(E, -1, -2)
-        new = _replace_eo(eo, eo.positions + powers @ P[:, 1, :], eo.velocities + dpow @ P[:, 1, :],
-                          matrix_to_quat(R), f"line-scan EO corrections, degree {self.degree}")
-        return type(cam)(cam.interior, new, cam.shape, line_times=cam.line_times, workers=cam.workers)
+        M = rotvec_to_matrix(w) @ np.swapaxes(cam._rotations[j], -1, -2)
+        v = np.einsum("nij,nj->ni", M, X - cam._positions[j] - powers @ P[:, 1, :])
+        return v, M, w, powers
+
+    def framelets(self, params: ArrayLike, xyz: ArrayLike) -> NDArray[np.intp]:
+        """Exposure index of the framelet each point is given to under the corrections; -1 if none.
+
+        The camera's rule (:meth:`PushFrameCamera.closest_framelets`) applied to the corrected geometry,
+        so that the projection equals the corrected camera's (:meth:`apply`) ``ground_to_image``.
+        """
+        p = _params(params, self.n_params, "PushFrameCorrections")
+        X = _xyz(xyz)
+        if not np.any(p):
+            return self.sensor.closest_framelets(X)
+        return self.sensor.closest_framelets(X, lambda g, j: self._sensor_vectors(p, g, j)[0])
+
+    def _geometry(self, p: Array, X: Array, jacobian: bool):
+        cam = self.sensor
+        j = self.framelets(p, X)
+        lost = j < 0
+        jj = np.where(lost, 0, j)
+        v, M, w, powers = self._sensor_vectors(p, X, jj)
+        pix, dv = pinhole_image(v, cam.interior.focal_length, cam.distortion, self._A, self._b, jacobian)
+        pix = np.column_stack([cam.image_line(jj, pix[:, 0]), pix[:, 1]])
+        pix[lost] = np.nan
+        return pix, dv, v, M, w, powers, lost
+
+    def project(self, params: ArrayLike, xyz: ArrayLike) -> Array:
+        p = _params(params, self.n_params, "PushFrameCorrections")
+        return self._geometry(p, _xyz(xyz), False)[0]
+
+    def partials(self, params: ArrayLike, xyz: ArrayLike) -> tuple[Array, Array, Array]:
+        p = _params(params, self.n_params, "PushFrameCorrections")
+        X = _xyz(xyz)
+        pix, dv, v, M, w, powers, lost = self._geometry(p, X, True)
+        dv[:, 0, :] *= self._sign                  # image line = +-(detector-side framelet line) + const
+        d_x, d_c, d_w = _eo_partials(dv, v, M, w)
+        d_p = _polynomial_partials(d_w, d_c, powers)
+        d_p[lost] = np.nan
+        d_x[lost] = np.nan
+        return pix, d_p, d_x
+
+    def apply(self, params: ArrayLike) -> Any:
+        """A new :class:`PushFrameCamera` whose EO samples carry the corrections (see :class:`LineScanCorrections`)."""
+        p = _params(params, self.n_params, "PushFrameCorrections")
+        cam = self.sensor
+        new = _polynomial_eo(cam.eo, p, self.degree, self.tau(cam.eo.times), self.t_half,
+                             f"push-frame EO corrections, degree {self.degree}")
+        return type(cam)(cam.interior, new, cam.shape, cam.timing)
 
 
 # -- affine image-space corrections (RFMs, or any sensor) ---------------------------------------

@@ -440,7 +440,10 @@ def make_distortion(model: str, coefficients: Mapping[str, Any] | None = None) -
     Parameters
     ----------
     model : str
-        ``"none"``, ``"lrolrocnac"``, ``"radial"`` or ``"kaguyalism"`` (case-insensitive).
+        A name of :data:`DISTORTION_MODELS` (case-insensitive): ``"none"``, ``"lrolrocnac"``, ``"radial"``,
+        ``"kaguyalism"``, the film cameras' ``"lunarorbiter"`` and ``"apollometric"``, and usgscsm's
+        ``"transverse"``, ``"radtan"``, ``"dawnfc"``, ``"kplo_shadowcam"``
+        (:mod:`lunarmap.camera.distortion_csm`).
     coefficients : mapping, optional
         The block, e.g. ``{"coefficients": [1.81e-05]}`` or, for kaguyalism,
         ``{"x": [...], "y": [...], "boresight_x": ..., "boresight_y": ...}``.
@@ -457,8 +460,15 @@ def make_distortion(model: str, coefficients: Mapping[str, Any] | None = None) -
 
 
 def distortion_from_interior(interior: Any) -> Distortion:
-    """The distortion model of an :class:`~lunarmap.camera.interior.InteriorOrientation`."""
-    return make_distortion(interior.distortion_model, interior.distortion_coefficients)
+    """The distortion model of an :class:`~lunarmap.camera.interior.InteriorOrientation`.
+
+    Models defined on coordinates normalised by the focal length (``radtan``) get it from the
+    interior orientation.
+    """
+    block = dict(interior.distortion_coefficients)
+    if str(interior.distortion_model).lower() == "radtan":
+        block["focal_length"] = float(interior.focal_length)
+    return make_distortion(interior.distortion_model, block)
 
 
 # --- Film cameras of the historical missions (issue 13: Lunar Orbiter, Apollo metric) ----------------

@@ -314,36 +314,46 @@ class _CameraModel:
         return line, sample, in_front & np.isfinite(line) & np.isfinite(sample)
 
     def _occluded(self, sensor: Array, ground: Array) -> NDArray[np.bool_]:
-        """True where the segment sensor -> ground crosses the body's deep interior.
-
-        The body is the shape shrunk by ``_OCCLUSION_DEPTH`` (deeper than any
-        lunar terrain), so points on or below the surface on the visible
-        hemisphere are never flagged while points on the far side are.
-        """
-        axes = np.maximum(self.shape.axes - _OCCLUSION_DEPTH, 0.5 * self.shape.axes)
-        o = sensor / axes
-        d = (ground - sensor) / axes
-        a = np.einsum("...i,...i->...", d, d)
-        b = np.einsum("...i,...i->...", o, d)
-        c = np.einsum("...i,...i->...", o, o) - 1.0
-        disc = b * b - a * c
-        with np.errstate(invalid="ignore", divide="ignore"):
-            s_near = (-b - np.sqrt(disc)) / a
-        return (disc > 0.0) & (c > 0.0) & (s_near > 0.0) & (s_near < 1.0)
+        return occluded_by_body(self.shape, sensor, ground)
 
     def _finish_ground_to_image(self, line: Array, sample: Array, ok: NDArray[np.bool_], within_image: bool,
                                 on_miss: str) -> tuple[Array, Array]:
-        if within_image:
-            # a hair of tolerance so that points on the image edge survive round-off
-            tol = 1e-6
-            ok = ok & (line >= -tol) & (line <= self.interior.n_lines + tol) \
-                & (sample >= -tol) & (sample <= self.interior.n_samples + tol)
-        if on_miss == "raise" and not np.all(ok):
-            n = int(np.count_nonzero(~ok))
-            raise GeometryError(f"{n} of {ok.size} ground point(s) are not seen by "
-                                f"{self.interior.name or 'the image'} (behind the sensor or the body"
-                                f"{' or outside the image' if within_image else ''})")
-        return np.where(ok, line, np.nan), np.where(ok, sample, np.nan)
+        return finish_ground_to_image(line, sample, ok, self.n_lines, self.n_samples, within_image, on_miss,
+                                      self.interior.name)
+
+
+def occluded_by_body(shape: Shape, sensor: Array, ground: Array) -> NDArray[np.bool_]:
+    """True where the segment sensor -> ground crosses the body's deep interior.
+
+    The body is the shape shrunk by ``_OCCLUSION_DEPTH`` (deeper than any
+    lunar terrain), so points on or below the surface on the visible
+    hemisphere are never flagged while points on the far side are.
+    """
+    axes = np.maximum(shape.axes - _OCCLUSION_DEPTH, 0.5 * shape.axes)
+    o = sensor / axes
+    d = (ground - sensor) / axes
+    a = np.einsum("...i,...i->...", d, d)
+    b = np.einsum("...i,...i->...", o, d)
+    c = np.einsum("...i,...i->...", o, o) - 1.0
+    disc = b * b - a * c
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s_near = (-b - np.sqrt(disc)) / a
+    return (disc > 0.0) & (c > 0.0) & (s_near > 0.0) & (s_near < 1.0)
+
+
+def finish_ground_to_image(line: Array, sample: Array, ok: NDArray[np.bool_], n_lines: int, n_samples: int,
+                           within_image: bool, on_miss: str, name: str = "") -> tuple[Array, Array]:
+    """NaN for points not seen (and outside the image when ``within_image``), or GeometryError for ``"raise"``."""
+    if within_image:
+        # a hair of tolerance so that points on the image edge survive round-off
+        tol = 1e-6
+        ok = ok & (line >= -tol) & (line <= n_lines + tol) & (sample >= -tol) & (sample <= n_samples + tol)
+    if on_miss == "raise" and not np.all(ok):
+        n = int(np.count_nonzero(~ok))
+        raise GeometryError(f"{n} of {ok.size} ground point(s) are not seen by "
+                            f"{name or 'the image'} (behind the sensor or the body"
+                            f"{' or outside the image' if within_image else ''})")
+    return np.where(ok, line, np.nan), np.where(ok, sample, np.nan)
 
 
 class FrameCamera(_CameraModel):

@@ -13,7 +13,7 @@ east-positive), sampled bilinearly.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Callable, Literal
 
 import numpy as np
 import xarray as xr
@@ -27,6 +27,7 @@ __all__ = [
     "intersect_sphere",
     "DtmSampler",
     "intersect_dtm",
+    "surface_points_on_dtm",
 ]
 
 OnMiss = Literal["raise", "nan"]
@@ -205,6 +206,80 @@ def _lonlat(points: Array) -> tuple[Array, Array]:
     return lon, lat
 
 
+def surface_points_on_dtm(point_at: Callable[[NDArray[np.intp], Array], Array], n: int,
+                          dtm: xr.DataArray | DtmSampler, radius: float, tol: float = 1e-3,
+                          max_iter: int = 100) -> Array:
+    """Points of ``n`` one-parameter loci (rays, SAR range circles) where they meet a DTM; NaN where none.
+
+    ``point_at(idx, r)`` gives the points ``(len(idx), 3)`` where loci ``idx`` cross the sphere of radius
+    ``r`` (metres; NaN rows where they do not). The height ``h`` of the crossing solves
+    ``dtm(point_at(radius + h)) = h`` with the safeguarded secant iteration of :func:`intersect_dtm`.
+
+    Raises
+    ------
+    ConvergenceError
+        The iteration did not converge within ``max_iter`` for some locus.
+    """
+    sampler = dtm if isinstance(dtm, DtmSampler) else DtmSampler(dtm)
+
+    def f_at(idx: NDArray[np.intp], h: Array) -> tuple[Array, Array]:
+        p = point_at(idx, radius + h)
+        lon, lat = _lonlat(p)
+        f = sampler(lon, lat) - h
+        # A locus that misses the sphere R+h stays above height h everywhere,
+        # which is the same side of the terrain as f < 0.
+        f = np.where(np.isnan(p[:, 0]), -1.0, f)
+        return f, p
+
+    out = np.full((n, 3), np.nan)
+    lo = np.full(n, sampler.min_height - 1.0)
+    hi = np.full(n, sampler.max_height + 1.0)
+    idx_all = np.arange(n)
+    # Loci missing the lowest sphere miss the terrain altogether.
+    failed = np.isnan(point_at(idx_all, radius + lo)[:, 0])
+    # First guess: the DTM height under the crossing of the mid-range sphere.
+    f_mid, _ = f_at(idx_all, 0.5 * (lo + hi))
+    h = np.clip(0.5 * (lo + hi) + f_mid, lo, hi)
+    h = np.where(np.isnan(h), 0.5 * (lo + hi), h)
+    h_prev = np.full(n, np.nan)
+    f_prev = np.full(n, np.nan)
+    active = np.flatnonzero(~failed)
+    for _ in range(max_iter):
+        if active.size == 0:
+            break
+        ha = h[active]
+        f, p = f_at(active, ha)
+        bad = np.isnan(f)  # left the DTM extent or hit a hole
+        if np.any(bad):
+            failed[active[bad]] = True
+        pos = f > 0.0
+        lo[active] = np.where(pos & ~bad, ha, lo[active])
+        hi[active] = np.where(~pos & ~bad, ha, hi[active])
+        hp, fp = h_prev[active], f_prev[active]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            secant = ha - f * (ha - hp) / (f - fp)
+        new = np.where(np.isfinite(secant), secant, ha + f)
+        mid = 0.5 * (lo[active] + hi[active])
+        # Bisect when the step leaves the bracket or |f| did not halve (stalling).
+        stall = np.isfinite(fp) & (np.abs(f) > 0.5 * np.abs(fp))
+        outside = ~((new > lo[active]) & (new < hi[active]))
+        new = np.where(outside | stall, mid, new)
+        new = np.where(f == 0.0, ha, new)
+        done = (np.abs(new - ha) < tol) | (f == 0.0) | (hi[active] - lo[active] < tol)
+        done &= ~bad
+        conv = active[done]
+        out[conv] = point_at(conv, radius + new[done])
+        h_prev[active] = ha
+        f_prev[active] = f
+        h[active] = new
+        active = active[~done & ~bad]
+    if active.size:
+        raise ConvergenceError(f"DTM intersection did not converge to {tol} m in {max_iter} iterations "
+                               f"for {active.size} of {n} ray(s)")
+    out[failed] = np.nan
+    return out
+
+
 def intersect_dtm(origins: ArrayLike, directions: ArrayLike, dtm: xr.DataArray | DtmSampler,
                   radius: float, tol: float = 1e-3, max_iter: int = 100,
                   on_miss: OnMiss = "raise") -> Array:
@@ -257,62 +332,9 @@ def intersect_dtm(origins: ArrayLike, directions: ArrayLike, dtm: xr.DataArray |
     shape = o.shape[:-1]
     o = o.reshape(-1, 3)
     d = d.reshape(-1, 3)
-    sampler = dtm if isinstance(dtm, DtmSampler) else DtmSampler(dtm)
-    n = o.shape[0]
 
-    def f_at(idx: NDArray[np.intp], h: Array) -> tuple[Array, Array]:
-        p = intersect_sphere(o[idx], d[idx], radius + h, on_miss="nan")
-        lon, lat = _lonlat(p)
-        f = sampler(lon, lat) - h
-        # A ray that misses the sphere R+h stays above height h everywhere,
-        # which is the same side of the terrain as f < 0.
-        f = np.where(np.isnan(p[:, 0]), -1.0, f)
-        return f, p
+    def point_at(idx: NDArray[np.intp], r: Array) -> Array:
+        return intersect_sphere(o[idx], d[idx], r, on_miss="nan")
 
-    out = np.full((n, 3), np.nan)
-    lo = np.full(n, sampler.min_height - 1.0)
-    hi = np.full(n, sampler.max_height + 1.0)
-    # First guess: the DTM height under the ray's intersection with the mid-range sphere.
-    idx_all = np.arange(n)
-    # Rays missing the lowest sphere miss the terrain altogether.
-    failed = np.isnan(intersect_sphere(o, d, radius + lo, on_miss="nan")[:, 0])
-    f_mid, _ = f_at(idx_all, 0.5 * (lo + hi))
-    h = np.clip(0.5 * (lo + hi) + f_mid, lo, hi)
-    h = np.where(np.isnan(h), 0.5 * (lo + hi), h)
-    h_prev = np.full(n, np.nan)
-    f_prev = np.full(n, np.nan)
-    active = np.flatnonzero(~failed)
-    for _ in range(max_iter):
-        if active.size == 0:
-            break
-        ha = h[active]
-        f, p = f_at(active, ha)
-        bad = np.isnan(f)  # left the DTM extent or hit a hole
-        if np.any(bad):
-            failed[active[bad]] = True
-        pos = f > 0.0
-        lo[active] = np.where(pos & ~bad, ha, lo[active])
-        hi[active] = np.where(~pos & ~bad, ha, hi[active])
-        hp, fp = h_prev[active], f_prev[active]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            secant = ha - f * (ha - hp) / (f - fp)
-        new = np.where(np.isfinite(secant), secant, ha + f)
-        mid = 0.5 * (lo[active] + hi[active])
-        # Bisect when the step leaves the bracket or |f| did not halve (stalling).
-        stall = np.isfinite(fp) & (np.abs(f) > 0.5 * np.abs(fp))
-        outside = ~((new > lo[active]) & (new < hi[active]))
-        new = np.where(outside | stall, mid, new)
-        new = np.where(f == 0.0, ha, new)
-        done = (np.abs(new - ha) < tol) | (f == 0.0) | (hi[active] - lo[active] < tol)
-        done &= ~bad
-        conv = active[done]
-        out[conv] = intersect_sphere(o[conv], d[conv], radius + new[done], on_miss="nan")
-        h_prev[active] = ha
-        f_prev[active] = f
-        h[active] = new
-        active = active[~done & ~bad]
-    if active.size:
-        raise ConvergenceError(f"DTM intersection did not converge to {tol} m in {max_iter} iterations "
-                               f"for {active.size} of {n} ray(s)")
-    out[failed] = np.nan
+    out = surface_points_on_dtm(point_at, o.shape[0], dtm, radius, tol=tol, max_iter=max_iter)
     return _finish(out.reshape(shape + (3,)), on_miss, "the DTM (outside its extent or on a hole)")

@@ -6,9 +6,9 @@ together, and matching costs per point. :func:`thin_points` keeps at most ``max_
 one per cell of a square grid over image 1 (the strongest), restricted to where image 2 can see
 them, so that the kept points cover the overlap evenly:
 
-1. the overlap: a coarse grid of image 1 (about 32 cells across its longer side) is predicted into
-   image 2 at the prediction height; cells whose centre lands inside image 2, and their neighbours
-   (the overlap's edge runs through them), hold the candidates;
+1. the overlap: a coarse grid of square cells of image 1 (32 across its shorter side, at most 4,096) is
+   predicted into image 2 at the prediction height; cells whose centre or a corner lands inside image
+   2, and their neighbours (the overlap's edge runs through them), hold the candidates;
 2. the cell size: the smallest of ``cell * 2^(k/2)`` (k = 0, 1, ...) whose occupied cells number at
    most ``max_points``; the grid is anchored at image 1's origin, so pairs of one image with similar
    overlaps choose the same cells and the same points, which become anchors of multi-image tracks.
@@ -33,25 +33,35 @@ _GRID = 32
 
 
 def overlap_cells(sensor1: Any, sensor2: Any, shape1: tuple[int, int], shape2: tuple[int, int],
-                  height: float, grid: int = _GRID) -> tuple[float, NDArray[np.bool_]]:
-    """Cell size (pixels) and ``(rows, cols)`` mask of the coarse cells of image 1 that image 2 sees.
+                  height: float, grid: int = _GRID, max_cells: int = 4096) -> tuple[float, NDArray[np.bool_]]:
+    """Cell size (pixels) and ``(rows, cols)`` mask of the square cells of image 1 that image 2 sees.
 
-    Cells whose centre is predicted inside image 2 at ``height`` metres, dilated by one cell.
+    Cells are ``1 / grid`` of image 1's shorter side (larger when that would make more than
+    ``max_cells``), so a narrow overlap along a long image (LRO NAC-L and NAC-R side by side) still
+    spans cells. A cell is in when its centre or a corner is predicted inside image 2 at ``height``
+    metres; the mask is then dilated by one cell (the overlap's edge runs through the cells around it).
     """
     h1, w1 = shape1
     h2, w2 = shape2
-    size = max(h1, w1) / float(grid)
+    size = min(h1, w1) / float(grid)
+    size = max(size, float(np.sqrt(h1 * w1 / max_cells)))
     rows, cols = max(1, int(np.ceil(h1 / size))), max(1, int(np.ceil(w1 / size)))
-    L, S = np.meshgrid((np.arange(rows) + 0.5) * size, (np.arange(cols) + 0.5) * size, indexing="ij")
-    L, S = np.minimum(L, h1 - 0.5), np.minimum(S, w1 - 0.5)
-    g = sensor1.image_to_ground(L.ravel(), S.ravel(), height=float(height), on_miss="nan")
+    # centre and the four corners of every cell (corners shared between neighbours)
+    lc, sc = (np.arange(rows) + 0.5) * size, (np.arange(cols) + 0.5) * size
+    le, se = np.arange(rows + 1) * size, np.arange(cols + 1) * size
+    pts = [np.meshgrid(lc, sc, indexing="ij"), np.meshgrid(le, se, indexing="ij")]
+    L = np.concatenate([np.minimum(p[0].ravel(), h1 - 0.5) for p in pts])
+    S = np.concatenate([np.minimum(p[1].ravel(), w1 - 0.5) for p in pts])
+    g = sensor1.image_to_ground(np.maximum(L, 0.5), np.maximum(S, 0.5), height=float(height), on_miss="nan")
     ok = np.all(np.isfinite(g), axis=1)
     inside = np.zeros(L.size, bool)
     if ok.any():
         l2, s2 = sensor2.ground_to_image(g[ok], on_miss="nan")
         l2, s2 = np.asarray(l2, float), np.asarray(s2, float)
         inside[ok] = np.isfinite(l2) & np.isfinite(s2) & (l2 >= 0) & (l2 <= h2) & (s2 >= 0) & (s2 <= w2)
-    m = inside.reshape(rows, cols)
+    m = inside[:rows * cols].reshape(rows, cols)
+    corner = inside[rows * cols:].reshape(rows + 1, cols + 1)
+    m |= corner[:-1, :-1] | corner[1:, :-1] | corner[:-1, 1:] | corner[1:, 1:]
     grown = m.copy()
     grown[1:] |= m[:-1]
     grown[:-1] |= m[1:]

@@ -124,6 +124,13 @@ class ExteriorOrientation:
             return np.broadcast_to(self.velocities[0], t.shape + (3,)).copy()
         return self._pos_spline(t, 1)  # type: ignore[attr-defined]
 
+    def acceleration_at(self, t: ArrayLike) -> NDArray[np.float64]:
+        """Sensor acceleration (m/s², body-fixed) of the position spline at times ``t``; zero for one sample."""
+        t = _as_times(t)
+        if self.times.size == 1:
+            return np.zeros(t.shape + (3,))
+        return self._pos_spline(t, 2)  # type: ignore[attr-defined]
+
     def quaternion_at(self, t: ArrayLike) -> NDArray[np.float64]:
         """Unit quaternions (sensor to body-fixed) at times ``t``; shape ``t.shape + (4,)``."""
         t = _as_times(t)

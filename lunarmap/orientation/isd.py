@@ -31,10 +31,12 @@ from numpy.typing import NDArray
 from ..atomic import atomic_write
 from ..errors import InvalidInputError
 from .exterior import ExteriorOrientation
+from .isd_kinds import PushFrameTiming, SarParameters
 from .rotation import matrix_to_quat
 from .rotation_table import J2000, RotationTable
 
-__all__ = ["RotationTable", "ImageSupport", "line_scan_epochs", "write_json_atomic"]
+__all__ = ["RotationTable", "ImageSupport", "PushFrameTiming", "SarParameters", "NAME_MODELS", "line_scan_epochs",
+           "write_json_atomic"]
 
 
 
@@ -45,12 +47,26 @@ def line_scan_epochs(start: float, stop: float, lines: int) -> NDArray[np.float6
     return np.linspace(start, stop, n)
 
 
+#: lunarmap's name of each kind of sensor -> usgscsm ``name_model``.
+NAME_MODELS = {
+    "frame": "USGS_ASTRO_FRAME_SENSOR_MODEL",
+    "linescan": "USGS_ASTRO_LINE_SCANNER_SENSOR_MODEL",
+    "pushframe": "USGS_ASTRO_PUSH_FRAME_SENSOR_MODEL",
+    "sar": "USGS_ASTRO_SAR_SENSOR_MODEL",
+}
+
+#: Sensors looking through optics (focal plane, distortion); SAR has none.
+OPTICAL_MODELS = ("frame", "linescan", "pushframe")
+
+
 @dataclass
 class ImageSupport:
     """Sampled geometry and camera constants of one image (ALE ISD content).
 
     Units follow ALE's ISD: km, km/s, seconds of ephemeris time, millimetres in
-    the focal plane. ``model`` is ``"frame"`` or ``"linescan"``.
+    the focal plane. ``model`` is ``"frame"``, ``"linescan"``, ``"pushframe"`` (with
+    :attr:`push_frame`) or ``"sar"`` (with :attr:`sar`; a SAR image has no focal plane, so the
+    interior-orientation fields keep their defaults and are not written).
     """
 
     model: str
@@ -72,16 +88,16 @@ class ImageSupport:
     sun_velocities: NDArray[np.float64]
     radii: NDArray[np.float64]  # km
     body_frame: str
-    focal_length: float
-    focal2pixel_lines: list[float]
-    focal2pixel_samples: list[float]
-    detector_center_line: float
-    detector_center_sample: float
-    starting_detector_line: float
-    starting_detector_sample: float
-    line_summing: int
-    sample_summing: int
-    optical_distortion: dict[str, Any]
+    focal_length: float = float("nan")
+    focal2pixel_lines: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    focal2pixel_samples: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    detector_center_line: float = 0.0
+    detector_center_sample: float = 0.0
+    starting_detector_line: float = 0.0
+    starting_detector_sample: float = 0.0
+    line_summing: int = 1
+    sample_summing: int = 1
+    optical_distortion: dict[str, Any] = field(default_factory=dict)
     naif_keywords: dict[str, Any] = field(default_factory=dict)
     isis_camera_version: int = 1
     provenance: dict[str, Any] = field(default_factory=dict)
@@ -91,15 +107,34 @@ class ImageSupport:
     #: J2000 -> body-fixed rotations at ``sun_times`` (m, 3, 3), when the Sun epochs are not among
     #: ``times``; ``None``: taken from ``body_state_rotations`` at the nearest sample.
     sun_body_rotations: NDArray[np.float64] | None = None
+    #: framelet timing of a push-frame image (``model == "pushframe"``)
+    push_frame: PushFrameTiming | None = None
+    #: range geometry of a SAR image (``model == "sar"``)
+    sar: SarParameters | None = None
 
     def __post_init__(self) -> None:
-        if self.model not in ("frame", "linescan"):
-            raise InvalidInputError(f"unknown sensor model {self.model!r}; use 'frame' or 'linescan'")
+        if self.model not in NAME_MODELS:
+            raise InvalidInputError(f"unknown sensor model {self.model!r}; use one of {sorted(NAME_MODELS)}")
         if self.line_scan_rates is not None:
             rows = np.asarray(self.line_scan_rates, dtype=float)
             if rows.ndim != 2 or rows.shape[1] != 3 or rows.shape[0] == 0:
                 raise InvalidInputError(f"line_scan_rates must have shape (m, 3), got {rows.shape}")
             self.line_scan_rates = rows
+        if (self.model == "pushframe") != (self.push_frame is not None):
+            raise InvalidInputError("a push-frame ImageSupport needs push_frame timing, and only it")
+        if (self.model == "sar") != (self.sar is not None):
+            raise InvalidInputError("a SAR ImageSupport needs sar parameters, and only it")
+        if self.push_frame is not None:
+            bad = self.push_frame.problem(int(self.image_lines), int(self.line_summing))
+            if bad is not None:
+                raise InvalidInputError(f"push-frame timing: {bad[0]} {bad[1]}")
+        if self.sar is not None:
+            bad = self.sar.problem()
+            if bad is not None:
+                raise InvalidInputError(f"SAR parameters: {bad[0]} {bad[1]}")
+        if self.model in OPTICAL_MODELS and not (np.isfinite(self.focal_length) and self.focal_length != 0.0):
+            raise InvalidInputError(f"a {self.model} camera needs a finite non-zero focal length, "
+                                    f"got {self.focal_length!r}")
 
     # -- construction from documents -------------------------------------------
     @classmethod
@@ -161,11 +196,11 @@ class ImageSupport:
         Parameters
         ----------
         epoch : float, optional
-            Reference ET for the relative times; defaults to the image start
-            (line scanners) or centre time (framing cameras).
+            Reference ET for the relative times; defaults to the centre time of a framing
+            camera and to the image start of the others.
         """
         if epoch is None:
-            epoch = self.starting_ephemeris_time if self.model == "linescan" else self.center_ephemeris_time
+            epoch = self.center_ephemeris_time if self.model == "frame" else self.starting_ephemeris_time
         xf = self.body_state_rotations
         state = np.concatenate([self.positions, self.velocities], axis=1)
         bf = np.einsum("nij,nj->ni", xf, state) * 1000.0
@@ -186,8 +221,22 @@ class ImageSupport:
         )
 
     # -- output ---------------------------------------------------------------
-    def to_ale_dict(self) -> dict[str, Any]:
-        """The ISD as ALE's ``ale.formatters.formatter.to_isd`` lays it out."""
+    def to_ale_dict(self, csm: bool = False) -> dict[str, Any]:
+        """The ISD as ALE's ``ale.formatters.formatter.to_isd`` lays it out.
+
+        Parameters
+        ----------
+        csm : bool
+            Replace a distortion model usgscsm does not apply (Apollo metric, Lunar Orbiter) by a fitted
+            ``transverse`` polynomial, its fit error in the ``lunarmap`` block
+            (:func:`lunarmap.camera.csm.csm_image_support`).
+        """
+        if csm:
+            # the fit needs the distortion models, which live in the camera package (imported on demand:
+            # the one call from orientation up into camera, for this output option only)
+            from ..camera.csm import csm_image_support
+
+            return csm_image_support(self).to_ale_dict()
         isd: dict[str, Any] = {
             "isis_camera_version": self.isis_camera_version,
             "image_lines": int(self.image_lines),
@@ -195,39 +244,44 @@ class ImageSupport:
             "name_platform": self.name_platform,
             "name_sensor": self.name_sensor,
             "reference_height": {"maxheight": 1000, "minheight": -1000, "unit": "m"},
+            "name_model": NAME_MODELS[self.model],
         }
+        start, center = self.starting_ephemeris_time, self.center_ephemeris_time
         if self.model == "linescan":
-            isd["name_model"] = "USGS_ASTRO_LINE_SCANNER_SENSOR_MODEL"
             isd["interpolation_method"] = "lagrange"
             isd["line_scan_rate"] = self.line_scan_rate
-            isd["starting_ephemeris_time"] = self.starting_ephemeris_time
-            isd["center_ephemeris_time"] = self.center_ephemeris_time
+            isd["starting_ephemeris_time"] = start
+            isd["center_ephemeris_time"] = center
+        elif self.push_frame is not None:
+            isd.update(self.push_frame.to_isd(start, center))
+        elif self.sar is not None:
+            isd.update(self.sar.to_isd(start, center))
         else:
-            isd["name_model"] = "USGS_ASTRO_FRAME_SENSOR_MODEL"
-            isd["center_ephemeris_time"] = self.center_ephemeris_time
+            isd["center_ephemeris_time"] = center
         isd["radii"] = {"semimajor": float(self.radii[0]), "semiminor": float(self.radii[2]), "unit": "km"}
         ends = [0, self.times.size - 1] if self.times.size > 1 else [0]
         isd["body_rotation"] = self.body_rotation.to_dict(every=np.array(ends), always_constant=False)  # type: ignore[arg-type]
         isd["instrument_pointing"] = self.pointing.to_dict()
         isd["naif_keywords"] = self.naif_keywords
-        isd["detector_sample_summing"] = int(self.sample_summing)
-        isd["detector_line_summing"] = int(self.line_summing)
-        isd["focal_length_model"] = {"focal_length": self.focal_length}
-        isd["detector_center"] = {"line": self.detector_center_line, "sample": self.detector_center_sample}
-        isd["focal2pixel_lines"] = list(self.focal2pixel_lines)
-        isd["focal2pixel_samples"] = list(self.focal2pixel_samples)
-        isd["optical_distortion"] = self.optical_distortion
-        isd["starting_detector_line"] = self.starting_detector_line
-        isd["starting_detector_sample"] = self.starting_detector_sample
+        if self.model in OPTICAL_MODELS:
+            isd["detector_sample_summing"] = int(self.sample_summing)
+            isd["detector_line_summing"] = int(self.line_summing)
+            isd["focal_length_model"] = {"focal_length": self.focal_length}
+            isd["detector_center"] = {"line": self.detector_center_line, "sample": self.detector_center_sample}
+            isd["focal2pixel_lines"] = list(self.focal2pixel_lines)
+            isd["focal2pixel_samples"] = list(self.focal2pixel_samples)
+            isd["optical_distortion"] = self.optical_distortion
+            isd["starting_detector_line"] = self.starting_detector_line
+            isd["starting_detector_sample"] = self.starting_detector_sample
         isd["instrument_position"] = _position_block(self.times, self.positions, self.velocities)
         isd["sun_position"] = _position_block(self.sun_times, self.sun_positions, self.sun_velocities)
         # ALE's layout names the body-fixed frame only by its NAIF id (naif_keywords.BODY_FRAME_CODE)
         isd["lunarmap"] = {**self.provenance, "body_frame": self.body_frame}
         return _jsonable(isd)
 
-    def write_json(self, path: str | os.PathLike[str]) -> None:
-        """Write :meth:`to_ale_dict` as JSON, atomically (no partial file on failure)."""
-        write_json_atomic(self.to_ale_dict(), path)
+    def write_json(self, path: str | os.PathLike[str], csm: bool = False) -> None:
+        """Write :meth:`to_ale_dict` (``csm``: see there) as JSON, atomically (no partial file on failure)."""
+        write_json_atomic(self.to_ale_dict(csm=True) if csm else self.to_ale_dict(), path)
 
 
 def _position_block(times: NDArray[np.float64], pos: NDArray[np.float64], vel: NDArray[np.float64]) -> dict[str, Any]:

@@ -1,4 +1,17 @@
-"""Reading ISD JSON documents (USGS ALE's layout, as written by ALE or lunarmap) without SPICE.
+"""Reading ISD JSON documents (USGS ALE's layout, as written by ALE, usgscsm's tests or lunarmap) without SPICE.
+
+Every ISD usgscsm accepts is read, with usgscsm's conventions (its ``constructStateFromIsd`` through
+ALE's C++ ``Util.cpp``): frame, line-scan, push-frame (``exposure_duration``, ``interframe_delay``,
+``framelet_height``, ``framelets_flipped``, ``framelet_order_reversed``, optional ``num_lines_overlap``)
+and SAR ISDs (``wavelength``, ``line_exposure_duration``, ``scaled_pixel_width``,
+``range_conversion_times`` / ``_coefficients``, ``look_direction``, ``ending_ephemeris_time``; no
+focal plane and no pointing needed); velocities, pointing angular velocities (absent or null) and
+``time_dependent_frames`` are optional; the pointing's ``constant_rotation`` counts only when the block
+names its ``time_dependent_frames`` (usgscsm ignores it otherwise); positions and radii are km whatever
+a ``unit`` key says (a radii unit other than km gets an
+:class:`~lunarmap.errors.IsdConventionWarning`); files may be gzipped (``.json.gz``). Rolling-shutter
+``jitter`` is refused by name (not modelled). Distortion blocks are checked against the schemas of
+:mod:`lunarmap.orientation.distortion_schema`.
 
 The document holds, in J2000 and km (see the shared kernel README, section 5):
 
@@ -50,9 +63,11 @@ file and the key (``instrument_pointing.quaternions``); nothing is written.
 
 from __future__ import annotations
 
+import gzip
 import json
 import math
 import os
+import zlib
 from collections.abc import Iterator, Mapping
 from numbers import Integral, Real
 from pathlib import Path
@@ -60,11 +75,13 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import CubicHermiteSpline
+from scipy.interpolate import CubicHermiteSpline, CubicSpline
 
-from ..errors import InvalidInputError, IsdFormatError
+from ..errors import IsdConventionWarning, IsdFormatError, warn
+from .distortion_schema import distortion_block_problem
+from .isd_kinds import PushFrameTiming, SarParameters
 from .rotation import align_quaternion_signs, normalize_quat, quat_to_matrix
-from .rotation_hermite import RotationHermite, quat_exp, quat_log, quat_multiply
+from .rotation_hermite import RotationHermite, quat_exp, quat_log, quat_multiply, rates_from_samples
 from .rotation_table import RotationTable
 
 
@@ -75,6 +92,8 @@ __all__ = ["image_support_fields", "read_isd_document", "SENSOR_MODELS", "EPOCH_
 SENSOR_MODELS = {
     "USGS_ASTRO_FRAME_SENSOR_MODEL": "frame",
     "USGS_ASTRO_LINE_SCANNER_SENSOR_MODEL": "linescan",
+    "USGS_ASTRO_PUSH_FRAME_SENSOR_MODEL": "pushframe",
+    "USGS_ASTRO_SAR_SENSOR_MODEL": "sar",
 }
 
 #: Epochs of the position and pointing tables closer than this (s) are one epoch.
@@ -98,7 +117,6 @@ KNOWN_BODY_FRAMES = {
 }
 
 J2000 = 1
-_UNIT_TO_KM = {"km": 1.0, "m": 1e-3}
 # unit quaternions in files are normalised to ~1e-15; a larger error means corrupted data
 _QUAT_NORM_TOL = 1e-6
 _ORTHO_TOL = 1e-9
@@ -241,23 +259,43 @@ def _check_j2000(doc: _Doc, blk: Mapping[str, Any], prefix: str) -> None:
 
 
 def _states(doc: _Doc, d: Mapping[str, Any], key: str) -> tuple[Array, Array, Array]:
+    """Times, positions and velocities (km, km/s) of a state table; velocities are optional.
+
+    Positions are km whatever a ``unit`` key says: usgscsm reads them so (ALE's C++ ISD reader
+    ignores the key). Missing velocities (usgscsm accepts tables without them) are the derivative of
+    the not-a-knot cubic spline through the positions, zero for a single position.
+    """
     blk = doc.block(d, key)
     p = key + "."
     _check_j2000(doc, blk, p)
     t = _epochs(doc, blk, p)
     pos = doc.array(blk, "positions", (t.size, 3), p)
-    vel = doc.array(blk, "velocities", (t.size, 3), p)
+    if "velocities" in blk:
+        vel = doc.array(blk, "velocities", (t.size, 3), p)
+    elif t.size == 1:
+        vel = np.zeros((1, 3))
+    elif t.size == 2:
+        vel = np.repeat((pos[1:] - pos[:1]) / (t[1] - t[0]), 2, axis=0)
+    else:
+        vel = CubicSpline(t, pos, axis=0)(t, 1)
     return t, pos, vel
 
 
 class _Rotations:
-    """One rotation block: J2000 -> ``time_dependent_frames[0]`` samples, then the constant part."""
+    """One rotation block: J2000 -> ``time_dependent_frames[0]`` samples, then the constant part.
 
-    def __init__(self, doc: _Doc, d: Mapping[str, Any], key: str, need_rates: bool) -> None:
+    As usgscsm (ALE's C++ ``getInstrumentPointing`` / ``getBodyRotation``) reads them: the frame
+    lists are optional; the pointing's ``constant_rotation`` is read only when the block names its
+    ``time_dependent_frames`` (usgscsm ignores it otherwise), the body rotation's whenever present.
+    """
+
+    def __init__(self, doc: _Doc, d: Mapping[str, Any], key: str, need_rates: bool,
+                 constant_needs_frames: bool = False) -> None:
         blk = doc.block(d, key)
         p = key + "."
         _check_j2000(doc, blk, p)
-        self.time_dependent_frames = doc.int_list(blk, "time_dependent_frames", p)
+        self.time_dependent_frames = (doc.int_list(blk, "time_dependent_frames", p)
+                                      if "time_dependent_frames" in blk else [])
         self.times = _epochs(doc, blk, p)
         n = self.times.size
         q = doc.array(blk, "quaternions", (n, 4), p)
@@ -265,40 +303,35 @@ class _Rotations:
         if np.any(np.abs(norm - 1.0) > _QUAT_NORM_TOL):
             i = int(np.argmax(np.abs(norm - 1.0)))
             raise doc.error(p + "quaternions", f"must hold unit quaternions; row {i} has norm {norm[i]!r}")
-        if need_rates or "angular_velocities" in blk:
+        self.rates_given = need_rates or blk.get("angular_velocities") is not None   # null: no rates (ALE)
+        if self.rates_given:
             av = doc.array(blk, "angular_velocities", (n, 3), p)
         else:
-            av = _rates_from_samples(self.times, q)
-        if "constant_rotation" in blk:
+            av = rates_from_samples(self.times, q)
+        own_frames = self.time_dependent_frames[:1]
+        if "constant_rotation" in blk and (self.time_dependent_frames or not constant_needs_frames):
             c = doc.array(blk, "constant_rotation", (9,), p).reshape(3, 3)
             if np.abs(c @ c.T - np.eye(3)).max() > _ORTHO_TOL or np.linalg.det(c) < 0.0:
                 raise doc.error(p + "constant_rotation", "is not a rotation matrix (row-major 3x3)")
             self.constant_rotation = c
             self.constant_frames = (doc.int_list(blk, "constant_frames", p) if "constant_frames" in blk
-                                    else [self.time_dependent_frames[0]])
+                                    else own_frames)
         else:
             self.constant_rotation = np.eye(3)
-            self.constant_frames = [self.time_dependent_frames[0]]
+            self.constant_frames = own_frames
         self.quaternions = q
         self.angular_velocities = av
 
 
-def _rates_from_samples(times: Array, q: Array) -> Array:
-    """Angular velocities (``xf2rav`` convention) of sampled rotations that came without them.
-
-    Each interval's constant rate (its geodesic), averaged over the two intervals
-    meeting at a sample; zero for a single sample.
-    """
-    if times.size == 1:
-        return np.zeros((1, 3))
-    qn = q / np.linalg.norm(q, axis=1, keepdims=True)
-    rel = quat_multiply(qn[:-1] * np.array([1.0, -1.0, -1.0, -1.0]), qn[1:])
-    rel *= np.where(rel[:, :1] < 0.0, -1.0, 1.0)
-    rate = -quat_log(rel) / np.diff(times)[:, None]
-    out = np.empty((times.size, 3))
-    out[0], out[-1] = rate[0], rate[-1]
-    out[1:-1] = 0.5 * (rate[:-1] + rate[1:])
-    return out
+def _identity_pointing(times: Array) -> "_Rotations":
+    """The pointing of a SAR ISD without ``instrument_pointing`` (usgscsm's SAR model reads none)."""
+    r = object.__new__(_Rotations)
+    r.time_dependent_frames, r.times = [], times
+    r.quaternions = np.tile([1.0, 0.0, 0.0, 0.0], (times.size, 1))
+    r.angular_velocities = np.zeros((times.size, 3))
+    r.constant_rotation, r.constant_frames = np.eye(3), []
+    r.rates_given = False
+    return r
 
 
 def _resample_pointing(times: Array, q: Array, av: Array, at: Array) -> tuple[Array, Array]:
@@ -375,28 +408,87 @@ def _body_frame_name(doc: _Doc, naif: Mapping[str, Any], own: Mapping[str, Any])
 
 
 def _distortion(doc: _Doc, d: Mapping[str, Any]) -> dict[str, Any]:
-    # the camera package builds on this one: import its distortion models only when used
-    from ..camera.distortion import DISTORTION_MODELS, make_distortion
-
     blk = doc.block(d, "optical_distortion")
     if len(blk) != 1:
         raise doc.error("optical_distortion", f"must name exactly one model, got {sorted(blk)}")
     model, coeffs = next(iter(blk.items()))
     key = f"optical_distortion.{model}"
-    if str(model).lower() not in DISTORTION_MODELS:
-        raise doc.error(key, f"names a distortion model lunarmap does not know; known: {sorted(DISTORTION_MODELS)}")
-    if not isinstance(coeffs, Mapping):
-        raise doc.error(key, f"must be a JSON object, got {type(coeffs).__name__}")
-    for name, v in coeffs.items():
-        values = v if isinstance(v, list) else [v]
-        for leaf in _leaves(values):
-            if isinstance(leaf, bool) or not isinstance(leaf, Real) or not _finite(leaf):
-                raise doc.error(f"{key}.{name}", f"must hold finite numbers, found {leaf!r:.40}")
-    try:
-        make_distortion(str(model), coeffs)
-    except (InvalidInputError, TypeError, ValueError) as err:
-        raise doc.error(key, f"is malformed: {err}") from None
+    bad = distortion_block_problem(str(model), coeffs)
+    if bad is not None:
+        raise doc.error(f"{key}.{bad[0]}" if bad[0] else key, bad[1])
     return {str(model): json.loads(json.dumps(coeffs))}
+
+
+def _radii(doc: _Doc, d: Mapping[str, Any]) -> Array:
+    """Body radii, km: usgscsm reads ``radii`` in km whatever its ``unit`` says, and so does lunarmap."""
+    radii_blk = doc.block(d, "radii")
+    if "unit" in radii_blk:
+        unit = doc.string(radii_blk, "unit", "radii.")
+        if unit.strip().lower() not in ("km", "kilometers", "kilometres"):
+            warn(f"{doc.where}: radii.unit is {unit!r}; the radii are read in km, as usgscsm reads them",
+                 IsdConventionWarning)
+    a = doc.number(radii_blk, "semimajor", "radii.")
+    c = doc.number(radii_blk, "semiminor", "radii.")
+    if not (a > 0.0 and c > 0.0):
+        raise doc.error("radii", f"must be positive, got semimajor {a!r}, semiminor {c!r} km")
+    return np.array([a, a, c])
+
+
+def _boolean(doc: _Doc, d: Mapping[str, Any], key: str) -> bool:
+    v = doc.get(d, key)
+    if not isinstance(v, bool):
+        raise doc.error(key, f"must be true or false, got {v!r:.40}")
+    return v
+
+
+def _push_frame(doc: _Doc, d: Mapping[str, Any], lines: int, summing: int) -> PushFrameTiming:
+    timing = PushFrameTiming(
+        exposure_duration=doc.number(d, "exposure_duration"),
+        interframe_delay=doc.number(d, "interframe_delay"),
+        framelet_height=doc.integer(d, "framelet_height", minimum=1),
+        framelets_flipped=_boolean(doc, d, "framelets_flipped"),
+        framelet_order_reversed=_boolean(doc, d, "framelet_order_reversed"),
+        num_lines_overlap=doc.integer(d, "num_lines_overlap", minimum=0, default=0),
+        ending_ephemeris_time=doc.number(d, "ending_ephemeris_time") if "ending_ephemeris_time" in d else None)
+    bad = timing.problem(lines, summing)
+    if bad is not None:
+        raise doc.error(*bad)
+    return timing
+
+
+def _sar(doc: _Doc, d: Mapping[str, Any]) -> SarParameters:
+    times = doc.array(d, "range_conversion_times", (-1,))
+    params = SarParameters(
+        wavelength=doc.number(d, "wavelength"),
+        line_exposure_duration=doc.number(d, "line_exposure_duration"),
+        scaled_pixel_width=doc.number(d, "scaled_pixel_width"),
+        range_conversion_times=times,
+        range_conversion_coefficients=doc.array(d, "range_conversion_coefficients", (-1, 4)),
+        look_direction=doc.string(d, "look_direction"),
+        ending_ephemeris_time=doc.number(d, "ending_ephemeris_time"))
+    bad = params.problem()
+    if bad is not None:
+        raise doc.error(*bad)
+    return params
+
+
+def _interior(doc: _Doc, d: Mapping[str, Any]) -> dict[str, Any]:
+    """Focal plane, detector and distortion of an optical sensor (frame, line scan, push frame)."""
+    focal = doc.number(doc.block(d, "focal_length_model"), "focal_length", "focal_length_model.")
+    if focal == 0.0:  # negative: the camera looks along -z of its frame (lunarmap's Lunar Orbiter, Apollo metric)
+        raise doc.error("focal_length_model.focal_length", f"must be non-zero (mm), got {focal!r}")
+    f2l = doc.array(d, "focal2pixel_lines", (3,))
+    f2s = doc.array(d, "focal2pixel_samples", (3,))
+    if abs(f2l[1] * f2s[2] - f2l[2] * f2s[1]) == 0.0:
+        raise doc.error("focal2pixel_lines", "and focal2pixel_samples form a singular transform")
+    centre = doc.block(d, "detector_center")
+    return dict(
+        focal_length=focal, focal2pixel_lines=f2l.tolist(), focal2pixel_samples=f2s.tolist(),
+        detector_center_line=doc.number(centre, "line", "detector_center."),
+        detector_center_sample=doc.number(centre, "sample", "detector_center."),
+        starting_detector_line=doc.number(d, "starting_detector_line"),
+        starting_detector_sample=doc.number(d, "starting_detector_sample"),
+        optical_distortion=_distortion(doc, d))
 
 
 def image_support_fields(d: Mapping[str, Any], source: str = "") -> dict[str, Any]:
@@ -426,10 +518,19 @@ def image_support_fields(d: Mapping[str, Any], source: str = "") -> dict[str, An
     if name_model not in SENSOR_MODELS:
         raise doc.error("name_model", f"is {name_model!r}; lunarmap reads {sorted(SENSOR_MODELS)}")
     model = SENSOR_MODELS[name_model]
+    if "jitter" in d:
+        # usgscsm's rolling-shutter jitter of framing cameras; ignoring it would silently misplace pixels
+        raise doc.error("jitter", "(rolling-shutter jitter) is not modelled by lunarmap")
     lines = doc.integer(d, "image_lines", minimum=1)
     samples = doc.integer(d, "image_samples", minimum=1)
     center = doc.number(d, "center_ephemeris_time")
+    optical = model != "sar"
+    # SAR images have no detector: usgscsm reads no summing for them
+    line_summing = doc.integer(d, "detector_line_summing", minimum=1) if optical else 1
+    sample_summing = doc.integer(d, "detector_sample_summing", minimum=1) if optical else 1
     rows: Array | None = None
+    kind_fields: dict[str, Any] = {}
+    line_period = 0.0
     if model == "linescan":
         start = doc.number(d, "starting_ephemeris_time")
         rows = doc.array(d, "line_scan_rate", (-1, 3))
@@ -438,22 +539,23 @@ def image_support_fields(d: Mapping[str, Any], source: str = "") -> dict[str, An
         if np.any(np.diff(rows[:, 0]) <= 0.0):
             raise doc.error("line_scan_rate", "rows must start at increasing lines (first column)")
         line_period = float(rows[0, 2])
+    elif model == "pushframe":
+        start = doc.number(d, "starting_ephemeris_time")
+        kind_fields["push_frame"] = _push_frame(doc, d, lines, line_summing)
+    elif model == "sar":
+        start = doc.number(d, "starting_ephemeris_time")
+        kind_fields["sar"] = sar = _sar(doc, d)
+        line_period = sar.line_exposure_duration
     else:
         start = doc.number(d, "starting_ephemeris_time", default=center)
-        line_period = 0.0
 
-    radii_blk = doc.block(d, "radii")
-    unit = doc.string(radii_blk, "unit", "radii.") if "unit" in radii_blk else "km"
-    if unit.lower() not in _UNIT_TO_KM:
-        raise doc.error("radii.unit", f"is {unit!r}; use 'km' or 'm'")
-    a = doc.number(radii_blk, "semimajor", "radii.") * _UNIT_TO_KM[unit.lower()]
-    c = doc.number(radii_blk, "semiminor", "radii.") * _UNIT_TO_KM[unit.lower()]
-    if not (a > 0.0 and c > 0.0):
-        raise doc.error("radii", f"must be positive, got semimajor {a!r}, semiminor {c!r} km")
-
+    radii = _radii(doc, d)
     pos_t, pos, vel = _states(doc, d, "instrument_position")
     sun_t, sun_pos, sun_vel = _states(doc, d, "sun_position")
-    pointing = _Rotations(doc, d, "instrument_pointing", need_rates=False)
+    if optical or "instrument_pointing" in d:
+        pointing = _Rotations(doc, d, "instrument_pointing", need_rates=False, constant_needs_frames=True)
+    else:
+        pointing = _identity_pointing(pos_t)
     body = _Rotations(doc, d, "body_rotation", need_rates=True)
 
     times = _merge_epochs(pos_t, pointing.times)
@@ -465,15 +567,8 @@ def image_support_fields(d: Mapping[str, Any], source: str = "") -> dict[str, An
     body_xf = body_table.state_transforms()
     sun_body = body.constant_rotation @ RotationHermite(body.times, body.quaternions,
                                                         body.angular_velocities).matrices(sun_t)
-
-    focal = doc.number(doc.block(d, "focal_length_model"), "focal_length", "focal_length_model.")
-    if focal == 0.0:  # negative: the camera looks along -z of its frame (lunarmap's Lunar Orbiter, Apollo metric)
-        raise doc.error("focal_length_model.focal_length", f"must be non-zero (mm), got {focal!r}")
-    f2l = doc.array(d, "focal2pixel_lines", (3,))
-    f2s = doc.array(d, "focal2pixel_samples", (3,))
-    if abs(f2l[1] * f2s[2] - f2l[2] * f2s[1]) == 0.0:
-        raise doc.error("focal2pixel_lines", "and focal2pixel_samples form a singular transform")
-    centre = doc.block(d, "detector_center")
+    if optical:
+        kind_fields.update(_interior(doc, d))
     naif = doc.block(d, "naif_keywords") if "naif_keywords" in d else {}
     own = doc.block(d, "lunarmap") if "lunarmap" in d else {}
     provenance = {k: v for k, v in json.loads(json.dumps(own)).items() if k != "body_frame"}
@@ -486,39 +581,40 @@ def image_support_fields(d: Mapping[str, Any], source: str = "") -> dict[str, An
         starting_ephemeris_time=start, line_period=line_period, times=times, positions=positions,
         velocities=velocities,
         pointing=RotationTable(pointing.time_dependent_frames, times, q_p, w_p, pointing.constant_frames,
-                               pointing.constant_rotation),
+                               pointing.constant_rotation, pointing.rates_given),
         body_rotation=body_table,
         body_state_rotations=body_xf, sun_times=sun_t, sun_positions=sun_pos, sun_velocities=sun_vel,
-        radii=np.array([a, a, c]), body_frame=_body_frame_name(doc, naif, own), focal_length=focal,
-        focal2pixel_lines=f2l.tolist(), focal2pixel_samples=f2s.tolist(),
-        detector_center_line=doc.number(centre, "line", "detector_center."),
-        detector_center_sample=doc.number(centre, "sample", "detector_center."),
-        starting_detector_line=doc.number(d, "starting_detector_line"),
-        starting_detector_sample=doc.number(d, "starting_detector_sample"),
-        line_summing=doc.integer(d, "detector_line_summing", minimum=1),
-        sample_summing=doc.integer(d, "detector_sample_summing", minimum=1),
-        optical_distortion=_distortion(doc, d),
+        radii=radii, body_frame=_body_frame_name(doc, naif, own),
+        line_summing=line_summing, sample_summing=sample_summing,
         naif_keywords=json.loads(json.dumps(naif)),
         isis_camera_version=doc.integer(d, "isis_camera_version", default=1),
-        provenance=provenance, line_scan_rates=rows, sun_body_rotations=sun_body,
+        provenance=provenance, line_scan_rates=rows, sun_body_rotations=sun_body, **kind_fields,
     )
 
 
 def read_isd_document(path: str | os.PathLike[str]) -> tuple[Any, str]:
     """The parsed JSON document of an ISD file and its name (see :func:`image_support_fields`).
 
+    A name ending in ``.gz`` is read through gzip (ISDs of long images run to megabytes).
+
     Raises
     ------
     FileNotFoundError
         No such file.
     IsdFormatError
-        Not UTF-8 text or not JSON; the file is named.
+        Not UTF-8 text, not JSON or a damaged gzip stream; the file is named.
     """
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"ISD file {p} does not exist")
     try:
-        text = p.read_text(encoding="utf-8")
+        if p.name.endswith(".gz"):
+            with gzip.open(p, "rb") as fh:
+                text = fh.read().decode("utf-8")
+        else:
+            text = p.read_text(encoding="utf-8")
+    except (OSError, EOFError, zlib.error) as err:
+        raise IsdFormatError(f"ISD {p}: not a readable gzip file ({err})") from None
     except UnicodeDecodeError as err:
         raise IsdFormatError(f"ISD {p}: not UTF-8 text ({err.reason} at byte {err.start})") from None
     try:

@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import InvalidInputError
 from .rotation import align_quaternion_signs, normalize_quat, quat_to_matrix
 
-__all__ = ["RotationHermite", "quat_multiply", "quat_exp", "quat_log", "state_transform"]
+__all__ = ["RotationHermite", "quat_multiply", "quat_exp", "quat_log", "state_transform", "rates_from_samples"]
 
 Array = NDArray[np.float64]
 
@@ -130,6 +130,25 @@ def _right_jacobian_inverse_apply(v: Array, x: Array) -> Array:
                  1.0 / (t * t) - (1.0 + np.cos(t)) / (2.0 * t * np.sin(t)))
     vx = np.cross(v, x)
     return x + 0.5 * vx + c * np.cross(v, vx)
+
+
+def rates_from_samples(times: Array, q: Array) -> Array:
+    """Angular velocities (``xf2rav`` convention) of sampled rotations that came without them.
+
+    Each interval's constant rate (its geodesic), averaged over the two intervals
+    meeting at a sample; zero for a single sample.
+    """
+    if times.size == 1:
+        return np.zeros((1, 3))
+    qn = q / np.linalg.norm(q, axis=1, keepdims=True)
+    rel = quat_multiply(qn[:-1] * np.array([1.0, -1.0, -1.0, -1.0]), qn[1:])
+    rel *= np.where(rel[:, :1] < 0.0, -1.0, 1.0)
+    rate = -quat_log(rel) / np.diff(times)[:, None]
+    out = np.empty((times.size, 3))
+    out[0], out[-1] = rate[0], rate[-1]
+    out[1:-1] = 0.5 * (rate[:-1] + rate[1:])
+    return out
+
 
 
 class RotationHermite:

@@ -23,7 +23,8 @@ class RotationTable:
     Parameters
     ----------
     time_dependent_frames : list of int
-        NAIF frame ids from the first time-dependent frame down to J2000 (ISIS order).
+        NAIF frame ids from the first time-dependent frame down to J2000 (ISIS order); empty when the
+        ISD named none (usgscsm does not need them).
     times : ndarray (n,)
         Ephemeris times, s.
     quaternions : ndarray (n, 4)
@@ -34,6 +35,9 @@ class RotationTable:
         From the destination frame (sensor or body-fixed) to ``time_dependent_frames[0]``.
     constant_rotation : ndarray (3, 3)
         ``pxform(time_dependent_frames[0], constant_frames[0])``.
+    rates_given : bool
+        Whether the angular velocities came from SPICE or the ISD; ``False``: derived from the
+        samples (CKs without rates, e.g. Chandrayaan's, for which ALE writes none), and not written.
     """
 
     time_dependent_frames: list[int]
@@ -42,6 +46,7 @@ class RotationTable:
     angular_velocities: NDArray[np.float64]
     constant_frames: list[int]
     constant_rotation: NDArray[np.float64]
+    rates_given: bool = True
 
     def matrices(self) -> NDArray[np.float64]:
         """J2000 -> destination-frame rotation matrices, shape (n, 3, 3)."""
@@ -60,7 +65,7 @@ class RotationTable:
 
         q, w = RotationHermite(self.times, self.quaternions, self.angular_velocities)(np.asarray(times, float))
         return RotationTable(list(self.time_dependent_frames), np.asarray(times, float).copy(), q, w,
-                             list(self.constant_frames), self.constant_rotation.copy())
+                             list(self.constant_frames), self.constant_rotation.copy(), self.rates_given)
 
     def state_transforms(self) -> NDArray[np.float64]:
         """6x6 state transforms J2000 -> destination frame at the epochs, ``(n, 6, 6)``."""
@@ -70,16 +75,20 @@ class RotationTable:
 
     def to_dict(self, every: slice = slice(None), always_constant: bool = True) -> dict[str, Any]:
         t = self.times[every]
-        out: dict[str, Any] = {
-            "time_dependent_frames": list(self.time_dependent_frames),
+        out: dict[str, Any] = {}
+        if self.time_dependent_frames:   # an ISD that named none (usgscsm's test ISDs) gets none back
+            out["time_dependent_frames"] = list(self.time_dependent_frames)
+        out.update({
             "ck_table_start_time": float(t[0]),
             "ck_table_end_time": float(t[-1]),
             "ck_table_original_size": int(t.size),
             "ephemeris_times": t.tolist(),
             "quaternions": self.quaternions[every].tolist(),
-            "angular_velocities": self.angular_velocities[every].tolist(),
-        }
-        if always_constant or self.constant_frames[0] != self.time_dependent_frames[0]:
+        })
+        # without rates the key is null, as ALE writes it: usgscsm needs the key and reads null as no rates
+        out["angular_velocities"] = self.angular_velocities[every].tolist() if self.rates_given else None
+        frames_differ = self.constant_frames[:1] != self.time_dependent_frames[:1]
+        if always_constant or frames_differ or not np.array_equal(self.constant_rotation, np.eye(3)):
             out["constant_frames"] = list(self.constant_frames)
             out["constant_rotation"] = self.constant_rotation.flatten().tolist()
         out["reference_frame"] = J2000

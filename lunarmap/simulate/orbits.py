@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..camera.interior import InteriorOrientation
+from ..camera.pushframe import FrameletTiming, PushFrameCamera
 from ..camera.shape import MOON_RADIUS
 from ..orientation.exterior import ExteriorOrientation
 from ..orientation.rotation import matrix_to_quat
@@ -23,6 +24,8 @@ __all__ = [
     "nadir_rotation",
     "nac_like_interior",
     "frame_interior",
+    "wac_like_interior",
+    "wac_like_camera",
     "NAC_LINES",
     "NAC_SAMPLES",
     "NAC_LINE_TIME",
@@ -147,3 +150,36 @@ def frame_interior(odk: tuple[float, float, float] | None = (0.0, -2.42e-5, 0.0)
         focal2pixel_samples=(0.0, 1.0 / pitch, 0.0), detector_center_line=144.0,
         detector_center_sample=192.0, n_lines=288, n_samples=384,
         distortion_model=model, distortion_coefficients=coeffs, pixel_pitch=pitch, name="UVVIS-like")
+
+
+def wac_like_interior(framelets: int = 60) -> InteriorOrientation:
+    """An LRO WAC UV filter-1-like push-frame interior (IK INS-85641, COLOR readout window), CSM pixels.
+
+    f = 4.669 mm, 9 micrometre pixels summed 4x into 128 samples, 16-line framelets (4 image lines
+    each, ``framelets`` of them), the UV's radial distortion (2.6 % at the field edge).
+    """
+    return InteriorOrientation(
+        focal_length=4.6690884, focal2pixel_lines=(0.0, -111.1111110443480, -0.0038517843825),
+        focal2pixel_samples=(0.0, -0.0038517843825, 111.1111110443480), detector_center_line=294.9784,
+        detector_center_sample=513.0482, n_lines=4 * framelets, n_samples=128, starting_detector_line=244.0,
+        starting_detector_sample=264.0, line_summing=4, sample_summing=4, distortion_model="radial",
+        distortion_coefficients={"coefficients": [-0.0258245827515546, -4.66139483592234e-05,
+                                                  -0.000144650735580122]},
+        pixel_pitch=0.009, name="WAC-UV-like")
+
+
+def wac_like_camera(lon: float = 30.0, lat: float = 0.0, t0: float = 0.0, framelets: int = 60,
+                    delay: float = 0.9, altitude: float = 50e3) -> PushFrameCamera:
+    """A nadir WAC-UV-like push-frame camera flying north on a polar orbit (:func:`polar_orbit_eo`).
+
+    The image is centred at ``t0`` (s after the EO epoch), with ``framelets`` framelets every ``delay``
+    seconds. A framelet covers 1.54 km at 50 km up, the ground track 1.61 km/s: 0.9 s makes neighbouring
+    framelets overlap by ~0.1 km, as a WAC image's do; 1.0 s leaves gaps, as the WAC's even and odd
+    framelet images (what ISIS and ALE adjust) do. The detector lines run south, so the framelets are
+    flipped into the image.
+    """
+    eo = polar_orbit_eo(lat_center=lat, lon=lon, altitude=altitude, half_span=abs(t0) + framelets * delay,
+                        step=0.5)
+    timing = FrameletTiming(t_first=t0 - 0.5 * (framelets - 1) * delay, interframe_delay=delay,
+                            framelet_height=16, exposure_duration=0.04, framelets_flipped=True)
+    return PushFrameCamera(wac_like_interior(framelets), eo, None, timing)

@@ -21,7 +21,7 @@ from .pool import SPICE_LOCK, spice_errors
 
 __all__ = [
     "states", "surface_lt_states", "rotations", "state_rotations", "angular_velocities",
-    "str2et", "scs2e", "sct2e", "et2utc", "frame_id", "frame_name", "frame_info", "frame_trace",
+    "str2et", "scs2e", "sct2e", "sce2s", "et2utc", "frame_id", "frame_name", "frame_info", "frame_trace",
     "pool_values", "pool_has", "body_radii", "body_code", "body_frame", "instrument_keywords", "C_KM_S",
     "light_times", "ck_clock", "sclk_ticks",
 ]
@@ -133,6 +133,12 @@ def sct2e(spacecraft: int, ticks: float) -> float:
     """Encoded spacecraft clock (ticks) to ET."""
     with SPICE_LOCK, spice_errors(f"converting encoded clock {ticks!r} of spacecraft {spacecraft}"):
         return float(spiceypy.sct2e(int(spacecraft), float(ticks)))
+
+
+def sce2s(spacecraft: int, et: float) -> str:
+    """ET to a spacecraft clock string (rounded to the clock's tick)."""
+    with SPICE_LOCK, spice_errors(f"converting ET {et} to the clock of spacecraft {spacecraft}"):
+        return str(spiceypy.sce2s(int(spacecraft), float(et)))
 
 
 def frame_id(frame: str | int) -> int:

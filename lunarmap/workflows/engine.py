@@ -41,6 +41,7 @@ import xarray as xr
 from ..errors import ConfigError, WorkflowError
 from .config import RunConfig, load_config
 from ..errors import LunarmapError
+from ..procmem import peak_rss_mb
 from .steps import (Done, ImageDone, ImageJob, MatchJob, adjust_step, adjusted_rpc_batch, as_dict, image_steps,
                     kernels_step, match_batch, provenance, read_pixels, tiepoints_step)
 from .store import Store, file_digest, files_digest, load_digests, save_digests, step_key
@@ -351,8 +352,22 @@ def _export(cfg: RunConfig, graph: _Graph, records: list[Done]) -> tuple[dict[st
     for d in records:
         by_stage.setdefault(d.step, []).append(d)
     files: dict[str, Path] = {}
+    # which store entry each output was copied from: a rerun copies only what changed
+    manifest_path = out / ".sources.json"
+    try:
+        copied = json.loads(manifest_path.read_text())
+    except (OSError, ValueError):
+        copied = {}
+    now: dict[str, str] = {}
+
+    def fresh(src: str | Path, dst: Path) -> bool:
+        rel = str(dst.relative_to(out))
+        now[rel] = str(src)
+        return copied.get(rel) == str(src) and dst.exists()
 
     def copy(src: str | Path, dst: Path) -> Path:
+        if fresh(src, dst):
+            return dst
         tmp = dst.with_name(f".{dst.name}.tmp")
         if Path(src).is_dir():
             shutil.rmtree(tmp, ignore_errors=True)
@@ -373,7 +388,9 @@ def _export(cfg: RunConfig, graph: _Graph, records: list[Done]) -> tuple[dict[st
             (out / stage).mkdir(exist_ok=True)
             for d in by_stage[stage]:
                 copy(d.path, out / stage / f"{d.item}.nc")
-                write_rpc_txt(read_netcdf(d.path), out / stage / f"{d.item}_RPC.TXT")
+                txt = out / stage / f"{d.item}_RPC.TXT"
+                if not fresh(d.path, txt):
+                    write_rpc_txt(read_netcdf(d.path), txt)
             files[stage] = out / stage
     (out / "isd").mkdir(exist_ok=True)
     for d in by_stage["isd"]:
@@ -386,6 +403,7 @@ def _export(cfg: RunConfig, graph: _Graph, records: list[Done]) -> tuple[dict[st
     summary["pairs_apart"] = int(graph.apart)
     summary["pairs_candidate"] = len(graph.pairs)
     (cfg.output / "steps.json").write_text(json.dumps(steps, indent=1))
+    manifest_path.write_text(json.dumps(now, indent=0))
     return files, summary
 
 
@@ -461,7 +479,15 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
         if cfg.html if report is None else report:
             from .report import write_report
 
-            result.report = write_report(result)
+            # a rerun that computed nothing keeps the report of the same adjustment (only its stage
+            # timings would differ)
+            page, stamp = cfg.output / "report" / "index.html", cfg.output / "report" / ".adjustment"
+            adjusted = next(d.key for d in progress.records if d.step == "adjust")
+            if result.computed == 0 and page.exists() and stamp.exists() and stamp.read_text() == adjusted:
+                result.report = page
+            else:
+                result.report = write_report(result)
+                stamp.write_text(adjusted)
         counts = result.counts()
         _log.info("run finished: %s", ", ".join(f"{s} {c} computed / {k} reused" for s, (c, k) in counts.items()))
         return result
@@ -472,20 +498,6 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
             cluster.close()
         root.removeHandler(handler)
         handler.close()
-
-
-def peak_rss_mb() -> float:
-    """Peak resident memory of this process, MB (``VmHWM`` of ``/proc/self/status``; ``ru_maxrss`` elsewhere)."""
-    try:
-        with open("/proc/self/status") as fh:
-            for line in fh:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def _client(address: Any, workers: int, cfg: RunConfig) -> tuple[Any, Any]:

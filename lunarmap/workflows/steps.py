@@ -403,10 +403,13 @@ def image_steps(store: Store, job: ImageJob, metakernel: str, heights: tuple[flo
     """One task per image: its ISD, footprints, RFM, pyramid and interest points, each stored under its own
     key (a rerun or a resumed run computes only the missing ones)."""
     isd = isd_step(store, job.isd_key, job.name, job.label, metakernel)
-    cam, src = _camera(isd), _source(job.pixels)
-    if tuple(src.shape) != (int(cam.n_lines), int(cam.n_samples)):
-        raise WorkflowError(f"image {job.name}: its pixels {job.pixels} are {src.shape[0]} x {src.shape[1]}, its "
-                            f"label {job.label} says {int(cam.n_lines)} x {int(cam.n_samples)} (lines x samples)")
+    stored = all(store.has(*k) for k in (("footprint", job.footprint_key, "npz"), ("pyramid", job.pyramid_key, "nc"),
+                                         ("detect", job.detect_key, "npz")))
+    if not stored:      # before any pixel work (a rerun of stored steps does not build the camera for it)
+        cam, src = _camera(isd), _source(job.pixels)
+        if tuple(src.shape) != (int(cam.n_lines), int(cam.n_samples)):
+            raise WorkflowError(f"image {job.name}: its pixels {job.pixels} are {src.shape[0]} x {src.shape[1]}, its "
+                                f"label {job.label} says {int(cam.n_lines)} x {int(cam.n_samples)} (lines x samples)")
     feet = footprint_step(store, job.footprint_key, isd, heights)
     records = [isd]
     if job.rpc_key is not None and rpc_height_range is not None:
@@ -539,98 +542,103 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
     from ..adjust.variance import estimate_image_variances
     from ..matching.tiepoints import read_tiepoints
     from ..orientation.isd import ImageSupport
+    from ..procmem import peak_rss_during
 
-    try:
-        cams = {n: _camera(d) for n, d in zip(names, isds)}
-        net = network_from_tiepoints(read_tiepoints(ties.path))
-        if points is not None:
-            net = merge_networks(net, read_network(points))
-        spec = None
-        if navigation is not None:
-            spec = NavigationSpec(orbit={n: g or n for n, g in zip(names, groups)}, **navigation)
-        block = build_block(cams, net, degree=degree, navigation=spec)
-        x0 = block.problem.points.copy()
-        opts = SolverOptions(ftol=ftol)
-        qc_out = None
-        problem = block.problem
-        if qc is not None and qc["steps"]:
-            qc_out = _quality_control(block, names, groups, qc, opts)
-            problem = qc_out.problem
-        groups_obs = np.where(block.network.point_type[problem.obs.pt_idx] == "tie", 0, 1)
-        tie_variance = estimate_tie_variance and not (qc_out is not None and "variance" in qc["steps"])
-        if qc_out is not None and not tie_variance:
-            est = None
-            result = qc_out.result
-        else:
-            est = estimate_image_variances(problem, groups_obs, np.array([tie_variance, False]), opts,
-                                           rounds=5 if tie_variance else 1)
-            result = est.result
-        res = BlockResult(Block(block.names, block.model, block.network, result.problem, block.navigation), result)
-        adjusted_isds = adjusted_image_support(res, {n: ImageSupport.read_json(d.path) for n, d in zip(names, isds)})
-    except LunarmapError as err:
-        raise _fail("adjust", "", err) from None
+    # the step's own peak memory, sampled while it runs, goes into summary.json
+    with peak_rss_during() as memory:
+        try:
+            cams = {n: _camera(d) for n, d in zip(names, isds)}
+            net = network_from_tiepoints(read_tiepoints(ties.path))
+            if points is not None:
+                net = merge_networks(net, read_network(points))
+            spec = None
+            if navigation is not None:
+                spec = NavigationSpec(orbit={n: g or n for n, g in zip(names, groups)}, **navigation)
+            block = build_block(cams, net, degree=degree, navigation=spec)
+            x0 = block.problem.points.copy()
+            opts = SolverOptions(ftol=ftol)
+            qc_out = None
+            problem = block.problem
+            if qc is not None and qc["steps"]:
+                qc_out = _quality_control(block, names, groups, qc, opts)
+                problem = qc_out.problem
+            groups_obs = np.where(block.network.point_type[problem.obs.pt_idx] == "tie", 0, 1)
+            tie_variance = estimate_tie_variance and not (qc_out is not None and "variance" in qc["steps"])
+            if qc_out is not None and not tie_variance:
+                est = None
+                result = qc_out.result
+            else:
+                est = estimate_image_variances(problem, groups_obs, np.array([tie_variance, False]), opts,
+                                               rounds=5 if tie_variance else 1)
+                result = est.result
+            res = BlockResult(Block(block.names, block.model, block.network, result.problem, block.navigation), result)
+            adjusted_isds = adjusted_image_support(res, {n: ImageSupport.read_json(d.path) for n, d in zip(names, isds)})
+        except LunarmapError as err:
+            raise _fail("adjust", "", err) from None
 
-    summary = {"sigma0": res.sigma0, "iterations": int(res.result.iterations), "converged": bool(res.converged),
-               "message": res.result.message, "tie_sigma_scale": float(est.scale[0]) if est is not None else 1.0,
-               "variance_factors": [h.tolist() for h in est.history] if est is not None else [], "images": list(names),
-               "n_points": int(block.problem.n_points), "n_observations": int(block.problem.obs.n),
-               "groups": {k: list(v) for k, v in res.result.group_quadratic_forms().items()},
-               "rms_px": res.result.rms_px(), "solve_seconds": float(res.result.solve_seconds)}
-    check_res = res
-    if qc_out is not None:
-        summary["qc"] = _qc_summary(qc_out, block, names)
-        # a check point that quality control left with fewer than 2 rays is not adjusted: it is reported, not scored
-        rays = np.bincount(block.problem.obs.pt_idx[qc_out.ledger.active], minlength=block.problem.n_points)
-        lost = (block.network.point_type == "check") & (rays < 2)
-        if lost.any():
-            summary["qc"]["check_points_without_rays"] = block.network.point_id[lost].astype(str).tolist()
-            net_eval = replace(block.network, point_type=np.where(lost, "tie", block.network.point_type))
-            check_res = BlockResult(Block(block.names, block.model, net_eval, result.problem, block.navigation), result)
-    has_check = bool(np.any(check_res.block.network.point_type == "check"))
-
-    def write(folder: Path) -> None:
-        geo = {"crs": MOON_GEOGRAPHIC_CRS, **attrs}
-        corr = res.corrections()
-        corr.attrs.update(attrs)
-        corr.to_netcdf(folder / "corrections.nc")
-        pts = res.points()
-        pts.attrs.update(geo)
-        pts["lon"].attrs["standard_name"], pts["lat"].attrs["standard_name"] = "longitude", "latitude"
-        pts.to_netcdf(folder / "points.nc")
-        resid = res.result.residuals_dataset()
-        resid["image_name"] = ("obs", np.asarray(names, dtype=object)[resid["image"].values])
-        resid["point_type"] = ("obs", block.network.point_type[resid["point"].values].astype(object))
+        summary = {"sigma0": res.sigma0, "iterations": int(res.result.iterations), "converged": bool(res.converged),
+                   "message": res.result.message, "tie_sigma_scale": float(est.scale[0]) if est is not None else 1.0,
+                   "variance_factors": [h.tolist() for h in est.history] if est is not None else [], "images": list(names),
+                   "n_points": int(block.problem.n_points), "n_observations": int(block.problem.obs.n),
+                   "groups": {k: list(v) for k, v in res.result.group_quadratic_forms().items()},
+                   "rms_px": res.result.rms_px(), "solve_seconds": float(res.result.solve_seconds)}
+        check_res = res
         if qc_out is not None:
-            resid["qc_removed"] = ("obs", ~qc_out.ledger.active)
-            qc_out.report.write(folder / "qc.nc")
-            (folder / "qc.txt").write_text(qc_out.report.table() + "\n")
-        resid.attrs.update(attrs)
-        resid.to_netcdf(folder / "residuals.nc")
-        if has_check:
-            from ..evaluate import block_check_errors
+            summary["qc"] = _qc_summary(qc_out, block, names)
+            # a check point that quality control left with fewer than 2 rays is not adjusted: it is reported, not scored
+            rays = np.bincount(block.problem.obs.pt_idx[qc_out.ledger.active], minlength=block.problem.n_points)
+            lost = (block.network.point_type == "check") & (rays < 2)
+            if lost.any():
+                summary["qc"]["check_points_without_rays"] = block.network.point_id[lost].astype(str).tolist()
+                net_eval = replace(block.network, point_type=np.where(lost, "tie", block.network.point_type))
+                check_res = BlockResult(Block(block.names, block.model, net_eval, result.problem, block.navigation), result)
+        has_check = bool(np.any(check_res.block.network.point_type == "check"))
 
-            before, after = block_check_errors(check_res, x0), block_check_errors(check_res)
-            ds = xr.Dataset({"error_before": before["error"], "error_after": after["error"],
-                             "sigma_after": after["sigma"], "normalized_after": after["normalized"],
-                             "error_enu_before": before["error_enu"], "error_enu_after": after["error_enu"],
-                             "sigma_enu_after": after["sigma_enu"]},
-                            attrs={**geo, "components": "along-track, cross-track, height (m)",
-                                   "along_track_azimuth_deg": after.attrs["along_track_azimuth"],
-                                   "rms_before_m": before.attrs["rms"], "rms_after_m": after.attrs["rms"],
-                                   "normalized_rms": after.attrs["normalized_rms"]})
-            ds.to_netcdf(folder / "check_points.nc")
-            summary["check_rms_before_m"] = np.asarray(before.attrs["rms"]).tolist()
-            summary["check_rms_after_m"] = np.asarray(after.attrs["rms"]).tolist()
-            summary["check_sigma_after_m"] = np.asarray(after.attrs["expected_rms"]).tolist()
-            summary["check_normalized_rms"] = float(after.attrs["normalized_rms"])
-            summary["check_components"] = ["along-track", "cross-track", "height"]
-        for n, isd in adjusted_isds.items():
-            isd.write_json(folder / f"{n}.adjusted.json")
-        (folder / "summary.json").write_text(json.dumps(summary, indent=1))
+        def write(folder: Path) -> None:
+            geo = {"crs": MOON_GEOGRAPHIC_CRS, **attrs}
+            corr = res.corrections()
+            corr.attrs.update(attrs)
+            corr.to_netcdf(folder / "corrections.nc")
+            pts = res.points()
+            pts.attrs.update(geo)
+            pts["lon"].attrs["standard_name"], pts["lat"].attrs["standard_name"] = "longitude", "latitude"
+            pts.to_netcdf(folder / "points.nc")
+            resid = res.result.residuals_dataset()
+            resid["image_name"] = ("obs", np.asarray(names, dtype=object)[resid["image"].values])
+            resid["point_type"] = ("obs", block.network.point_type[resid["point"].values].astype(object))
+            if qc_out is not None:
+                resid["qc_removed"] = ("obs", ~qc_out.ledger.active)
+                qc_out.report.write(folder / "qc.nc")
+                (folder / "qc.txt").write_text(qc_out.report.table() + "\n")
+            resid.attrs.update(attrs)
+            resid.to_netcdf(folder / "residuals.nc")
+            if has_check:
+                from ..evaluate import block_check_errors
 
-    path = store.write_dir("adjust", key, write)
-    return Done("adjust", key, "", str(path), True, time.perf_counter() - t,
-                note=f"sigma0 {summary['sigma0']:.3f}")
+                before, after = block_check_errors(check_res, x0), block_check_errors(check_res)
+                ds = xr.Dataset({"error_before": before["error"], "error_after": after["error"],
+                                 "sigma_after": after["sigma"], "normalized_after": after["normalized"],
+                                 "error_enu_before": before["error_enu"], "error_enu_after": after["error_enu"],
+                                 "sigma_enu_after": after["sigma_enu"]},
+                                attrs={**geo, "components": "along-track, cross-track, height (m)",
+                                       "along_track_azimuth_deg": after.attrs["along_track_azimuth"],
+                                       "rms_before_m": before.attrs["rms"], "rms_after_m": after.attrs["rms"],
+                                       "normalized_rms": after.attrs["normalized_rms"]})
+                ds.to_netcdf(folder / "check_points.nc")
+                summary["check_rms_before_m"] = np.asarray(before.attrs["rms"]).tolist()
+                summary["check_rms_after_m"] = np.asarray(after.attrs["rms"]).tolist()
+                summary["check_sigma_after_m"] = np.asarray(after.attrs["expected_rms"]).tolist()
+                summary["check_normalized_rms"] = float(after.attrs["normalized_rms"])
+                summary["check_components"] = ["along-track", "cross-track", "height"]
+            for n, isd in adjusted_isds.items():
+                isd.write_json(folder / f"{n}.adjusted.json")
+            summary["memory"] = {"rss_start_mb": memory.start_mb, "peak_mb": memory.peak_mb,
+                                 "bytes_per_observation": memory.added_mb * 2 ** 20 / max(1, block.problem.obs.n)}
+            (folder / "summary.json").write_text(json.dumps(summary, indent=1))
+
+        path = store.write_dir("adjust", key, write)
+        return Done("adjust", key, "", str(path), True, time.perf_counter() - t,
+                    note=f"sigma0 {summary['sigma0']:.3f}")
 
 
 def _quality_control(block: Any, names: Sequence[str], groups: Sequence[str], qc: dict[str, Any], opts: Any) -> Any:

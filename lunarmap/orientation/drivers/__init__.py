@@ -18,21 +18,30 @@ from ...labels import Label, load_label
 from ...spice import KernelSet, kernels
 from ..isd import ImageSupport
 from .base import Driver
-from .clementine import ClementineUvvisDriver
+from .clementine import ClementineDriver, ClementineUvvisDriver
 from .generic import GenericDriver
-from .kaguya import KaguyaTcDriver
+from .kaguya import KaguyaMiDriver, KaguyaTcDriver
 from .lro import LroNacDriver, LroNacPds3Driver
 # historical film cameras (issue 13)
 from .apollo import ApolloMetricDriver
-from .lunar_orbiter import LunarOrbiterHighDriver
+from .lunar_orbiter import LunarOrbiterHighDriver, LunarOrbiterMediumDriver
+# issue 26
+from .chandrayaan import (Chandrayaan1M3Driver, Chandrayaan1M3Pds3Driver, Chandrayaan2OhrcDriver,
+                          Chandrayaan2TmcDriver)
+from .lro_minirf import LroMiniRfDriver
+from .lro_wac import LroWacDriver
 
 __all__ = ["Driver", "LroNacDriver", "LroNacPds3Driver", "ClementineUvvisDriver", "KaguyaTcDriver", "GenericDriver",
-           "LunarOrbiterHighDriver", "ApolloMetricDriver",
+           "LunarOrbiterHighDriver", "ApolloMetricDriver", "LroWacDriver", "LroMiniRfDriver",
+           "ClementineDriver", "Chandrayaan2OhrcDriver", "Chandrayaan2TmcDriver", "Chandrayaan1M3Driver",
+           "Chandrayaan1M3Pds3Driver", "KaguyaMiDriver", "LunarOrbiterMediumDriver",
            "DRIVERS", "UNSUPPORTED_LABELS", "driver_for", "image_support"]
 
 #: Drivers in the order they are asked; the generic IK-configured driver is last.
-DRIVERS: list[type[Driver]] = [LroNacDriver, LroNacPds3Driver, ClementineUvvisDriver, KaguyaTcDriver,
-                               LunarOrbiterHighDriver, ApolloMetricDriver, GenericDriver]
+DRIVERS: list[type[Driver]] = [LroNacDriver, LroNacPds3Driver, ClementineDriver, KaguyaTcDriver,
+                               LunarOrbiterHighDriver, ApolloMetricDriver, LroWacDriver, LroMiniRfDriver,
+                               Chandrayaan2OhrcDriver, Chandrayaan2TmcDriver, Chandrayaan1M3Driver,
+                               Chandrayaan1M3Pds3Driver, KaguyaMiDriver, LunarOrbiterMediumDriver, GenericDriver]
 
 
 def _kaguya_tc_isis(label: Label) -> bool:
@@ -45,18 +54,9 @@ def _kaguya_tc_isis(label: Label) -> bool:
 #: name after the specific drivers and before :class:`GenericDriver`, which would
 #: otherwise claim them (they are ISIS labels with a NAIF frame code) and fail deep
 #: inside SPICE, or worse, succeed with the wrong conventions.
-def _lunar_orbiter_medium(label: Label) -> bool:
-    inst = Driver.isis_instrument(label)
-    return inst is not None and str(inst.get("SpacecraftName", "")).upper().startswith("LUNAR ORBITER") and \
-        str(inst.get("InstrumentId", "")).upper() == "MEDIUM RESOLUTION CAMERA"
-
-
 UNSUPPORTED_LABELS: list[tuple[Callable[[Label], bool], str]] = [
     (_kaguya_tc_isis, "Kaguya TC is supported from its PDS3 level-2B0 label only (the ISIS label's start time "
                       "and detector keywords are not read); give the PDS3 label"),
-    (_lunar_orbiter_medium, "the Lunar Orbiter medium-resolution camera is not supported (its boresight comes "
-                            "from the label and its distortion from ISIS's LoMediumDistortionMap); only the "
-                            "high-resolution camera is"),
 ]
 
 

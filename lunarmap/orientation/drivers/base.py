@@ -23,6 +23,7 @@ from ...labels.pvl import label_int
 from ...spice import queries as q
 from ..isd import ImageSupport, RotationTable, line_scan_epochs
 from ..rotation import matrix_to_quat
+from ..rotation_hermite import rates_from_samples
 
 __all__ = ["Driver"]
 
@@ -53,9 +54,12 @@ class Driver:
 
     #: human-readable name of what the driver handles
     name: ClassVar[str] = "generic"
-    #: ``"frame"`` or ``"linescan"``; generic drivers decide per image
+    #: ``"frame"``, ``"linescan"``, ``"pushframe"`` or ``"sar"``; generic drivers decide per image
     model: ClassVar[str] = "frame"
     isis_camera_version: ClassVar[int] = 1
+    #: whether the pointing CKs carry angular rates; without them (Chandrayaan-1/-2) only ``pxform``
+    #: works, the rates are derived from the samples and the ISD gets none, as ALE writes none
+    pointing_rates: ClassVar[bool] = True
 
     def __init__(self, label: Label, source: str = "") -> None:
         self.label = label
@@ -168,10 +172,22 @@ class Driver:
         raise NotImplementedError
 
     def sample_times(self) -> np.ndarray:
+        """Epochs of the position and pointing tables: ALE's per sensor kind (shared kernel README 5.1, 8)."""
         start, stop, _ = self.image_times()
         if self.model == "linescan":
             return line_scan_epochs(start, stop, self.image_lines)
+        if self.model in ("pushframe", "sar"):
+            return np.linspace(start, stop, self.image_lines + 1)   # ALE's PushFrame and Radar rule
         return np.array([(start + stop) / 2.0])
+
+    def center_time(self) -> float:
+        """The ISD's ``center_ephemeris_time``: the middle of the image times."""
+        start, stop, _ = self.image_times()
+        return (start + stop) / 2.0
+
+    def sensor_keys(self) -> dict[str, Any]:
+        """Extra :class:`ImageSupport` fields of push-frame (``push_frame``) and SAR (``sar``) drivers."""
+        return {}
 
     def position_correction(self) -> str:
         """Aberration correction of the sensor position (``"NONE"``, ``"LT+S"``, ``"SURFACE"``)."""
@@ -233,7 +249,7 @@ class Driver:
         self.check_instrument()
         start, stop, line_period = self.image_times()
         times = self.sample_times()
-        center = (start + stop) / 2.0
+        center = self.center_time()
         sc, body = self.spacecraft_id, self.target_id
         radii = q.body_radii(body)
 
@@ -246,7 +262,7 @@ class Driver:
         sun = q.states(10, sun_times, "J2000", "LT+S", body)
 
         body_code, body_frame = q.body_frame(body)
-        pointing = self._rotation_table(self.sensor_frame, times)
+        pointing = self._rotation_table(self.sensor_frame, times, rates=self.pointing_rates)
         # The body rotation is sampled where the ISD lists it (first and last epoch, as ALE does) and
         # interpolated to the other epochs exactly as a reader of the ISD file does: SPICE's own
         # per-epoch values differ from that smooth rotation only by its rounding noise (~8e-13 rad),
@@ -254,7 +270,7 @@ class Driver:
         body_rot = self._rotation_table(body_code, sun_times).interpolated(times)
         xf = body_rot.state_transforms()
 
-        io = self.interior()
+        io = self.interior() if self.model != "sar" else {}
         return ImageSupport(
             model=self.model, name_platform=self.platform_name, name_sensor=self.sensor_name,
             image_lines=self.image_lines, image_samples=self.image_samples,
@@ -266,15 +282,20 @@ class Driver:
             # the NAIF ids let adjusted orientation be written back as kernels (orientation.kernels)
             provenance={"driver": self.name, "label": self.source, "position_correction": corr,
                         "spacecraft_id": int(sc), "target_id": int(body)},
-            **io,
+            **io, **self.sensor_keys(),
         )
 
     @staticmethod
-    def _rotation_table(frame: int, times: np.ndarray) -> RotationTable:
+    def _rotation_table(frame: int, times: np.ndarray, rates: bool = True) -> RotationTable:
         constant, dependent = q.frame_trace(frame, float(times[0]))
         source = dependent[0]
         m = q.rotations("J2000", source, times)
-        av = q.angular_velocities("J2000", source, times)
+        quats = matrix_to_quat(m)
+        if rates:
+            av = q.angular_velocities("J2000", source, times)
+        else:
+            av = rates_from_samples(times, quats)
         const = q.rotations(source, constant[0], times[:1])[0]
-        return RotationTable(time_dependent_frames=dependent, times=times, quaternions=matrix_to_quat(m),
-                             angular_velocities=av, constant_frames=constant, constant_rotation=const)
+        return RotationTable(time_dependent_frames=dependent, times=times, quaternions=quats,
+                             angular_velocities=av, constant_frames=constant, constant_rotation=const,
+                             rates_given=rates)

@@ -38,7 +38,7 @@ from ...labels import Label
 from ...spice import queries as q
 from .base import Driver
 
-__all__ = ["LunarOrbiterHighDriver", "fiducial_affine"]
+__all__ = ["LunarOrbiterHighDriver", "LunarOrbiterMediumDriver", "fiducial_affine"]
 
 _MISSIONS = {f"LUNAR ORBITER {n}": n for n in (3, 4, 5)}
 
@@ -191,4 +191,73 @@ class LunarOrbiterHighDriver(Driver):
             "fiducial_residuals_mm": {i: [float(r[0]), float(r[1])] for i, r in
                                       zip(fit["ids"] or range(len(fit["residuals_mm"])), fit["residuals_mm"])},
         })
+        return isd
+
+
+class LunarOrbiterMediumDriver(Driver):
+    """Lunar Orbiter 3-5 medium-resolution camera (scanned film), ISIS cube labels.
+
+    Follows ALE's ``LoMediumCameraIsisLabelNaifSpiceDriver`` (shared kernel README 8.7): instrument
+    ``LO<n>_MED_RESOLUTION_CAMERA`` (-53x002), one epoch ``str2et(StartTime)``, no aberration correction,
+    focal length and ``ITRANSL``/``ITRANSS`` from the IAK (no fiducial fit), detector centre from the
+    label's ``BoresightLine``/``BoresightSample``. Departures, as for the high-resolution camera: the
+    focal length is negative (the camera looks along -z of its NAIF frame, checked against SPICE), the
+    detector centre is moved to CSM pixels (label value - 0.5). Distortion: none, as ALE; ISIS applies its
+    ``LoMediumDistortionMap`` (IAK ``OD_K``, ``POINT_OF_SYMMETRY``), which lunarmap does not model.
+    """
+
+    name = "lunar_orbiter_medium"
+    model = "frame"
+    isis_camera_version = 1
+
+    @classmethod
+    def matches(cls, label: Label) -> bool:
+        inst = cls.isis_instrument(label)
+        return inst is not None and str(inst.get("SpacecraftName", "")).upper() in _MISSIONS and \
+            str(inst.get("InstrumentId", "")).upper() == "MEDIUM RESOLUTION CAMERA"
+
+    @property
+    def _mission(self) -> int:
+        return _MISSIONS[str(self.keyword("Instrument", "SpacecraftName")).upper()]
+
+    @property
+    def ikid(self) -> int:
+        return -(530000 + 1000 * self._mission + 2)
+
+    @property
+    def spacecraft_id(self) -> int:
+        return -(530 + self._mission)
+
+    @property
+    def sensor_name(self) -> str:
+        return f"LO{self._mission}_MED_RESOLUTION_CAMERA"
+
+    def position_correction(self) -> str:
+        return "NONE"
+
+    def image_times(self) -> tuple[float, float, float]:
+        start = q.str2et(str(self.keyword("Instrument", "StartTime")))
+        return start, start, 0.0
+
+    def interior(self) -> dict[str, Any]:
+        return {
+            "focal_length": -abs(float(self.ik("FOCAL_LENGTH"))),
+            "focal2pixel_lines": [float(v) for v in self.ik("ITRANSL")],
+            "focal2pixel_samples": [float(v) for v in self.ik("ITRANSS")],
+            "detector_center_line": self.as_float(self.keyword("Instrument", "BoresightLine"), "BoresightLine") - 0.5,
+            "detector_center_sample": self.as_float(self.keyword("Instrument", "BoresightSample"),
+                                                    "BoresightSample") - 0.5,
+            "starting_detector_line": 0.0,
+            "starting_detector_sample": 0.0,
+            "line_summing": 1,
+            "sample_summing": 1,
+            "optical_distortion": {"radial": {"coefficients": [0.0, 0.0, 0.0]}},
+        }
+
+    def image_support(self) -> Any:
+        isd = super().image_support()
+        isd.provenance.update({
+            "focal_plane": "IAK ITRANSL/ITRANSS; focal length negative: the camera looks along -z of its NAIF frame",
+            "detector_center": "label Boresight - 0.5 (ISIS -> CSM pixels)",
+            "distortion": "none (as ALE); ISIS's LoMediumDistortionMap is not modelled"})
         return isd

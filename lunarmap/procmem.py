@@ -1,0 +1,75 @@
+"""Resident memory of this process: now, its peak, and the peak over a block of code (Linux ``/proc``).
+
+Memory counts like time: the run records the peak resident memory of its processes and of its
+adjustment step (:mod:`lunarmap.workflows`), so scale figures come with their memory. Off Linux the
+peak falls back to ``ru_maxrss`` and the block peak to the values at its ends.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+from dataclasses import dataclass
+from typing import Iterator
+
+__all__ = ["rss_mb", "peak_rss_mb", "PeakRss", "peak_rss_during"]
+
+
+def _status(key: str) -> float | None:
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith(key):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
+def rss_mb() -> float:
+    """Resident memory of this process now, MB (``VmRSS``; 0 where unknown)."""
+    v = _status("VmRSS:")
+    return v if v is not None else 0.0
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process, MB (``VmHWM``; ``ru_maxrss`` elsewhere)."""
+    v = _status("VmHWM:")
+    if v is not None:
+        return v
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+@dataclass
+class PeakRss:
+    """What :func:`peak_rss_during` measured: resident memory at the start and its peak during the block, MB."""
+
+    start_mb: float = 0.0
+    peak_mb: float = 0.0
+
+    @property
+    def added_mb(self) -> float:
+        """Peak minus start, MB: what the block needed beyond what the process already held."""
+        return max(self.peak_mb - self.start_mb, 0.0)
+
+
+@contextlib.contextmanager
+def peak_rss_during(interval: float = 0.05) -> Iterator[PeakRss]:
+    """Sample the resident memory every ``interval`` seconds while the block runs (a daemon thread)."""
+    out = PeakRss(rss_mb(), rss_mb())
+    stop = threading.Event()
+
+    def sample() -> None:
+        while not stop.wait(interval):
+            out.peak_mb = max(out.peak_mb, rss_mb())
+
+    th = threading.Thread(target=sample, name="lunarmap-rss", daemon=True)
+    th.start()
+    try:
+        yield out
+    finally:
+        stop.set()
+        th.join()
+        out.peak_mb = max(out.peak_mb, rss_mb())
