@@ -6,9 +6,10 @@
 ``lunarmap run CONFIG [--scheduler ADDRESS] [--workers N] [--serial]``
     the whole chain of a run configuration (TOML, see :mod:`lunarmap.workflows.config`) as one dask
     graph: ISDs, RPCs, tie points, adjustment, adjusted kernels, report; resumable.
-``lunarmap run --example [--output DIR] [--seed N] [--quick]`` (= ``lunarmap demo``)
-    writes the embedded example (a synthetic mission with rendered images and perturbed navigation)
-    and runs it; prints accuracy against the simulation's truth.
+``lunarmap run --example [--output DIR] [--seed N] [--quick] [--full-size]`` (= ``lunarmap demo``)
+    writes the embedded example (a synthetic mission with rendered images and perturbed navigation;
+    with ``--full-size`` eight LRO-NAC-like images of 52,224 x 5,064 pixels as ISIS cubes) and runs it;
+    prints accuracy against the simulation's truth. What is already written is not written again.
 ``lunarmap ranger-kernels TABLE -o DIR [--focal-length MM --format MM --pixel MM]``
     write a flight-parameter table (Ranger paper) as a SPICE kernel set with labels (issue 13).
 """
@@ -89,7 +90,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     handler = _progress_to_stderr()
     try:
         report = run_demo(args.output, seed=args.seed, quick=args.quick, scheduler=_scheduler(args),
-                          workers=args.workers)
+                          workers=args.workers, full_size=args.full_size)
     finally:
         logging.getLogger("lunarmap").removeHandler(handler)
     print(report.text())
@@ -154,6 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
         q.add_argument("--seed", type=int, default=0, help="with --example: seed of the mission, scene, measurements")
         q.add_argument("--quick", action="store_true",
                        help="with --example: fewer interest and check points (same chain, faster)")
+        q.add_argument("--full-size", action="store_true",
+                       help="with --example: 8 full-size LRO-NAC-like images (52,224 x 5,064 pixels, ISIS cubes, "
+                            "~2.3 GB, minutes to render) instead of the 12 small ones")
     r.set_defaults(func=_cmd_run)
     d.set_defaults(func=_cmd_demo, example=True)
     g = sub.add_parser("ranger-kernels", help="write a Ranger flight-parameter table as SPICE kernels and labels")

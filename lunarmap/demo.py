@@ -49,6 +49,7 @@ class DemoReport:
 
     folder: Path
     images: list[str]
+    orbits: int = 3
     n_tie_points: int = 0
     n_observations: int = 0
     sigma0: float = float("nan")
@@ -74,7 +75,7 @@ class DemoReport:
         b3, a3, s3 = (float(np.sqrt(np.sum(v ** 2))) for v in (b, a, s))
         lines = [
             f"lunarmap demo in {self.folder}",
-            f"  block: {len(self.images)} images ({', '.join(self.images[:4])}, ...) on 3 orbits, NAVIGATION "
+            f"  block: {len(self.images)} images ({', '.join(self.images[:4])}, ...) on {self.orbits} orbits, NAVIGATION "
             "kernels with per-orbit offsets and drifts",
             f"  tie points from the matcher: {self.n_tie_points} points, {self.n_observations} image observations",
             f"  adjustment on the rigorous cameras: sigma0 {self.sigma0:.3f} (tie-point sigma x "
@@ -108,7 +109,7 @@ def _grid(cam: Any, n: int = 9) -> tuple[np.ndarray, np.ndarray]:
 
 
 def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quick: bool = False,
-             scheduler: Any = None, workers: int = 2) -> DemoReport:
+             scheduler: Any = None, workers: int = 2, full_size: bool = False) -> DemoReport:
     """Run the chain (module docstring) in ``output``; returns its figures.
 
     Parameters
@@ -121,6 +122,9 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
         Fewer interest points and check points (for tests): same chain, about half the time.
     scheduler, workers
         As for :func:`lunarmap.workflows.run` (default: a local cluster of ``workers`` processes).
+    full_size : bool
+        The full-size example (8 LRO-NAC-like images of 52,224 x 5,064 pixels as ISIS cubes; see
+        :func:`lunarmap.workflows.write_example`).
     """
     import lunarmap
 
@@ -133,7 +137,7 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
 
     out = Path(output)
     t = time.perf_counter()
-    config = write_example(out, seed=seed, quick=quick)
+    config = write_example(out, seed=seed, quick=quick, full_size=full_size)
     t_example = time.perf_counter() - t
     _log.info("example written (mission, rendered images, control and check points, run.toml): %.1f s", t_example)
     result = run(config, scheduler=scheduler, workers=workers)
@@ -171,7 +175,7 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
             worst[kind] = max(worst.get(kind, 0.0), rms)
     seconds = {"example": t_example, **{k: v for k, v in _stage_durations(result.stage_seconds).items()}}
     return DemoReport(
-        folder=out, images=names, n_tie_points=int(s["n_points"]), n_observations=int(s["n_observations"]),
+        folder=out, images=names, orbits=bm.model.orbits, n_tie_points=int(s["n_points"]), n_observations=int(s["n_observations"]),
         sigma0=float(s["sigma0"]), tie_sigma_scale=float(s["tie_sigma_scale"]),
         check_rms_before=np.asarray(s["check_rms_before_m"]), check_rms_after=np.asarray(s["check_rms_after_m"]),
         check_sigma_after=np.asarray(s["check_sigma_after_m"]), check_normalized_rms=float(s["check_normalized_rms"]),

@@ -65,6 +65,7 @@ __all__ = [
     "ReseauError",
     "CubeError",
     "CubeFormatError",
+    "CubeWriteError",
     "MissingSpiceTablesError",
     "IsisNetworkFormatError",
     "UnknownImageError",
@@ -334,6 +335,14 @@ class CubeFormatError(CubeError, LabelError):
     """An image file is unusable: truncated, an unsupported pixel type or layout, a malformed label.
 
     The message names the file and the keyword or byte range involved.
+    """
+
+
+class CubeWriteError(CubeError, OSError):
+    """An image file could not be written: its folder is missing or read-only, the disk is full.
+
+    The message names the file and the operating system's cause; nothing is left under the file's
+    name (a partial file stays under a hidden temporary name only if the process was killed).
     """
 
 

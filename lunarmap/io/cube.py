@@ -22,8 +22,11 @@ of the first pixel is at ``(line, sample) = (0.5, 0.5)``; ISIS's is at ``(1, 1)`
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import os
 import re
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -34,12 +37,12 @@ import xarray as xr
 from numpy.typing import ArrayLike, NDArray
 
 from ..atomic import atomic_write
-from ..errors import CubeFormatError, LabelError
+from ..errors import CubeFormatError, CubeWriteError, LabelError
 from ..labels import Label, load_label, read_isis_table
 from .pvl_write import format_pvl
 from .special import PIXEL_TYPES, SPECIAL_CODES, classify, encode_special
 
-__all__ = ["IsisCube", "CubeLayout", "Table", "open_cube", "write_cube", "copy_cube_with_tables",
+__all__ = ["IsisCube", "CubeLayout", "Table", "open_cube", "write_cube", "CubeWriter", "copy_cube_with_tables",
            "table_bytes", "TABLE_TYPES"]
 
 #: ISIS table field types -> numpy dtype character code.
@@ -428,10 +431,248 @@ def write_cube(path: str | os.PathLike[str], data: ArrayLike, *, pixel_type: str
         Unknown pixel type or format, values outside the pixel type's range, a label
         longer than ``label_bytes``.
     """
+    _check_pixel_type(pixel_type, fmt)
+    raw = _encode(data, special, pixel_type, base, multiplier, byte_order, path)
+    b, l, s = raw.shape
+    tl, ts = (min(tile[0], l), min(tile[1], s)) if fmt == "Tile" else (l, s)
+    if fmt == "Tile":
+        core = _tiles(raw, tl, ts).tobytes()
+    else:
+        core = raw.tobytes()
+
+    table_blobs = [table_bytes(t) for t in (tables or [])]
+
+    def label_text(label_size: int) -> str:
+        start = label_size + 1
+        items = _cube_items(fmt, tl, ts, (b, l, s), pixel_type, byte_order, base, multiplier, start, label_size,
+                            groups)
+        pos = start + len(core)
+        for t, blob in zip(tables or [], table_blobs):
+            items.append(("Object", "Table", t.label_items(pos, len(blob))))
+            pos += len(blob)
+        items += list(objects or [])
+        return format_pvl(items)
+
+    text = _label_bytes(label_text(label_bytes), label_bytes, path)
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as fh:
+            fh.write(text)
+            fh.write(core)
+            for blob in table_blobs:
+                fh.write(blob)
+
+    return atomic_write(path, write)
+
+
+class CubeWriter:
+    """An ISIS cube (label attached, ``Tile`` format) written window by window, renamed into place when complete.
+
+    For images too large to hold in memory: the core is written as stripes of whole rows of tiles
+    (each one contiguous range of the file), in any order, into a hidden temporary file beside the
+    target whose full size is reserved when it is opened (a full disk fails then, not after an hour of
+    rendering). :meth:`finish` checks that every row of tiles was written, flushes and renames the
+    file onto its name; :meth:`abort` (or an exception inside ``with``) removes it. A process killed
+    mid-write leaves at most the hidden ``.<name>.*.tmp`` file, never a partial cube under the name.
+
+    Parameters
+    ----------
+    path : path-like
+        Final file name; its folder must exist and be writable.
+    lines, samples : int
+        Image size, pixels.
+    bands : int
+        Bands.
+    pixel_type, base, multiplier, byte_order, label_bytes, groups
+        As for :func:`write_cube` (no tables: they would follow the core).
+    tile : (int, int)
+        ``(TileLines, TileSamples)``; every :meth:`write` starts on a multiple of ``TileLines``.
+
+    Raises
+    ------
+    CubeFormatError
+        Bad pixel type, tile size or dimensions, a label longer than ``label_bytes``.
+    CubeWriteError
+        The folder is missing or not writable, or the disk has no room for the cube.
+
+    Examples
+    --------
+    >>> with CubeWriter("big.cub", 52224, 5064, pixel_type="UnsignedByte") as cube:  # doctest: +SKIP
+    ...     for l0 in range(0, 52224, 512):
+    ...         cube.write(render(l0, l0 + 512), l0)
+    """
+
+    def __init__(self, path: str | os.PathLike[str], lines: int, samples: int, *, bands: int = 1,
+                 pixel_type: str = "Real", base: float = 0.0, multiplier: float = 1.0,
+                 tile: tuple[int, int] = (128, 128), byte_order: str = "Lsb", groups: list[Any] | None = None,
+                 label_bytes: int = _LABEL_BYTES) -> None:
+        _check_pixel_type(pixel_type, "Tile")
+        self.path = Path(path)
+        if min(int(bands), int(lines), int(samples)) < 1 or min(int(tile[0]), int(tile[1])) < 1:
+            raise CubeFormatError(f"writing {self.path}: dimensions {bands} x {lines} x {samples} and tile {tile} "
+                                  "must be positive")
+        self.shape = (int(bands), int(lines), int(samples))
+        self.pixel_type, self.base, self.multiplier, self.byte_order = pixel_type, float(base), float(multiplier), \
+            byte_order
+        self.tile_lines, self.tile_samples = min(int(tile[0]), self.shape[1]), min(int(tile[1]), self.shape[2])
+        self._rows = -(-self.shape[1] // self.tile_lines)
+        self._cols = -(-self.shape[2] // self.tile_samples)
+        self._item = np.dtype(PIXEL_TYPES[pixel_type]).itemsize
+        self._label_bytes = int(label_bytes)
+        items = _cube_items("Tile", self.tile_lines, self.tile_samples, self.shape, pixel_type, byte_order, base,
+                            multiplier, self._label_bytes + 1, self._label_bytes, groups)
+        text = _label_bytes(format_pvl(items), self._label_bytes, self.path)
+        self._written = np.zeros((self.shape[0], self._rows), dtype=bool)
+        self._tmp: Path | None = None
+        self._fd = -1
+        folder = self.path.parent if str(self.path.parent) else Path(".")
+        if not folder.is_dir():
+            raise CubeWriteError(f"cannot write the cube {self.path}: folder {folder} does not exist")
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=folder)
+        except OSError as err:
+            raise CubeWriteError(f"cannot write the cube {self.path}: {err.strerror or err}") from None
+        self._fd, self._tmp = fd, Path(tmp)
+        try:
+            mask = os.umask(0)
+            os.umask(mask)
+            os.fchmod(fd, 0o666 & ~mask)   # mkstemp's 0600 would make the cube private to its writer
+            self._reserve(self.nbytes)
+            self._pwrite(text, 0)
+        except BaseException:
+            self.abort()
+            raise
+
+    @property
+    def nbytes(self) -> int:
+        """Size of the finished file, bytes (label space and padded tiles)."""
+        return self._label_bytes + self.shape[0] * self._rows * self._cols * self.tile_lines * self.tile_samples \
+            * self._item
+
+    def _fail(self, err: OSError) -> CubeWriteError:
+        return CubeWriteError(f"writing the cube {self.path} failed: {err.strerror or err} "
+                              f"({'the disk is full' if err.errno == errno.ENOSPC else 'nothing was left under its name'})")
+
+    def _reserve(self, nbytes: int) -> None:
+        try:
+            os.posix_fallocate(self._fd, 0, nbytes)
+        except AttributeError:  # pragma: no cover - no posix_fallocate on this platform
+            os.ftruncate(self._fd, nbytes)
+        except OSError as err:
+            if err.errno in (errno.EOPNOTSUPP, errno.EINVAL, errno.ENOSYS):  # the file system cannot reserve
+                try:
+                    os.ftruncate(self._fd, nbytes)
+                except OSError as err2:
+                    raise self._fail(err2) from None
+            else:
+                raise self._fail(err) from None
+
+    def _pwrite(self, data: bytes | memoryview, offset: int) -> None:
+        view = memoryview(data).cast("B")
+        try:
+            while view:
+                n = os.pwrite(self._fd, view, offset)
+                view, offset = view[n:], offset + n
+        except OSError as err:
+            raise self._fail(err) from None
+
+    def write(self, data: ArrayLike, line0: int = 0, band: int = 1, *, special: ArrayLike | None = None) -> None:
+        """Write DN values of lines ``[line0, line0 + n)`` of one band (all samples).
+
+        Parameters
+        ----------
+        data : array-like, shape (n, samples)
+            DN; NaN becomes Null; integer types store ``round((data - base) / multiplier)``. Values
+            already of the stored dtype (e.g. ``uint8`` for UnsignedByte with base 0, multiplier 1)
+            are written as they are, without a float copy.
+        line0 : int
+            First line (0-based); a multiple of ``TileLines``. ``n`` is a multiple of ``TileLines``
+            unless the stripe ends at the last line.
+        band : int
+            1-based band.
+        special : array-like of int8, optional
+            Special-pixel codes to store where non-zero.
+        """
+        if self._fd < 0:
+            raise CubeFormatError(f"cube {self.path} is already finished or aborted")
+        b, l, s = self.shape
+        arr = np.asarray(data)
+        if arr.ndim != 2 or arr.shape[1] != s:
+            raise CubeFormatError(f"writing {self.path}: a stripe must be (lines, {s}), got {arr.shape}")
+        n = arr.shape[0]
+        tl = self.tile_lines
+        if not (0 <= line0 < l and line0 % tl == 0 and line0 + n <= l and (n % tl == 0 or line0 + n == l) and n):
+            raise CubeFormatError(f"writing {self.path}: stripe of {n} lines at line {line0} does not cover whole "
+                                  f"rows of {tl}-line tiles inside the {l} lines")
+        if not 1 <= int(band) <= b:
+            raise CubeFormatError(f"writing {self.path}: band {band} is not in 1..{b}")
+        stored = np.dtype(PIXEL_TYPES[self.pixel_type]).newbyteorder("<" if self.byte_order.lower() == "lsb" else ">")
+        if arr.dtype == stored and special is None and self.base == 0.0 and self.multiplier == 1.0:
+            raw = arr[None]
+        else:
+            raw = _encode(arr, special, self.pixel_type, self.base, self.multiplier, self.byte_order, self.path)
+        core = np.ascontiguousarray(_tiles(raw, tl, self.tile_samples))
+        r0 = line0 // tl
+        tile_bytes = tl * self.tile_samples * self._item
+        offset = self._label_bytes + ((int(band) - 1) * self._rows + r0) * self._cols * tile_bytes
+        self._pwrite(core.data, offset)
+        self._written[int(band) - 1, r0:r0 + core.shape[1]] = True
+
+    def finish(self) -> Path:
+        """Check that every row of tiles was written, flush, and rename the cube onto its name; returns it."""
+        if self._fd < 0:
+            raise CubeFormatError(f"cube {self.path} is already finished or aborted")
+        missing = np.argwhere(~self._written)
+        if missing.size:
+            band, row = missing[0]
+            self.abort()
+            raise CubeFormatError(f"cube {self.path}: {len(missing)} row(s) of tiles were never written (first: "
+                                  f"band {band + 1}, lines {row * self.tile_lines}..); nothing was kept")
+        try:
+            os.fsync(self._fd)
+            os.close(self._fd)
+            self._fd = -1
+            os.replace(self._tmp, self.path)
+        except OSError as err:
+            self.abort()
+            raise self._fail(err) from None
+        self._tmp = None
+        return self.path
+
+    def abort(self) -> None:
+        """Remove the temporary file; the target is left as it was."""
+        if self._fd >= 0:
+            with contextlib.suppress(OSError):
+                os.close(self._fd)
+            self._fd = -1
+        if self._tmp is not None:
+            with contextlib.suppress(OSError):
+                self._tmp.unlink()
+            self._tmp = None
+
+    def __enter__(self) -> "CubeWriter":
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc_type is None:
+            self.finish()
+        else:
+            self.abort()
+
+    def __del__(self) -> None:  # an abandoned writer must not leave its temporary file
+        self.abort()
+
+
+def _check_pixel_type(pixel_type: str, fmt: str) -> None:
     if pixel_type not in PIXEL_TYPES:
         raise CubeFormatError(f"cannot write pixel type {pixel_type!r}; known: {sorted(PIXEL_TYPES)}")
     if fmt not in ("Tile", "BandSequential"):
         raise CubeFormatError(f"cannot write core format {fmt!r}; use Tile or BandSequential")
+
+
+def _encode(data: ArrayLike, special: ArrayLike | None, pixel_type: str, base: float, multiplier: float,
+            byte_order: str, path: Any) -> NDArray:
+    """Stored values ``(bands, lines, samples)`` of DN ``data`` (NaN and ``special`` codes -> special pixels)."""
     arr = np.asarray(data, dtype=np.float64)
     arr = arr[None] if arr.ndim == 2 else arr
     if arr.ndim != 3:
@@ -455,49 +696,40 @@ def write_cube(path: str | os.PathLike[str], data: ArrayLike, *, pixel_type: str
     if dtype.kind != "f" and np.any(classify(raw)[good] != 0):
         raise CubeFormatError(f"writing {os.fspath(path)}: some data values fall on {pixel_type}'s special pixels")
     order = "<" if byte_order.lower() == "lsb" else ">"
-    raw = raw.astype(raw.dtype.newbyteorder(order))
+    return raw.astype(raw.dtype.newbyteorder(order))
+
+
+def _tiles(raw: NDArray, tl: int, ts: int) -> NDArray:
+    """``(bands, lines, samples)`` as ISIS stores tiles: row of tiles by row of tiles, edge tiles padded."""
     b, l, s = raw.shape
-    tl, ts = (min(tile[0], l), min(tile[1], s)) if fmt == "Tile" else (l, s)
+    rows, cols = -(-l // tl), -(-s // ts)
+    padded = np.zeros((b, rows * tl, cols * ts), raw.dtype)
+    padded[:, :l, :s] = raw
+    return padded.reshape(b, rows, tl, cols, ts).transpose(0, 1, 3, 2, 4)
+
+
+def _cube_items(fmt: str, tl: int, ts: int, shape: tuple[int, int, int], pixel_type: str, byte_order: str,
+                base: float, multiplier: float, start: int, label_size: int, groups: list[Any] | None) -> list[Any]:
+    """The label items of a cube's ``IsisCube`` and ``Label`` objects."""
+    b, l, s = shape
+    core_items: list[Any] = [("StartByte", start), ("Format", fmt)]
     if fmt == "Tile":
-        rows, cols = -(-l // tl), -(-s // ts)
-        padded = np.zeros((b, rows * tl, cols * ts), raw.dtype)
-        padded[:, :l, :s] = raw
-        core = padded.reshape(b, rows, tl, cols, ts).transpose(0, 1, 3, 2, 4).tobytes()
-    else:
-        core = raw.tobytes()
+        core_items += [("TileSamples", ts), ("TileLines", tl)]
+    core_items += [("Group", "Dimensions", [("Samples", s), ("Lines", l), ("Bands", b)]),
+                   ("Group", "Pixels", [("Type", pixel_type),
+                                        ("ByteOrder", "Lsb" if byte_order.lower() == "lsb" else "Msb"),
+                                        ("Base", float(base)), ("Multiplier", float(multiplier))])]
+    return [("Object", "IsisCube", [("Object", "Core", core_items), *(groups or [])]),
+            ("Object", "Label", [("Bytes", label_size)])]
 
-    table_blobs = [table_bytes(t) for t in (tables or [])]
 
-    def label_text(label_size: int) -> str:
-        start = label_size + 1
-        core_items: list[Any] = [("StartByte", start), ("Format", fmt)]
-        if fmt == "Tile":
-            core_items += [("TileSamples", ts), ("TileLines", tl)]
-        core_items += [("Group", "Dimensions", [("Samples", s), ("Lines", l), ("Bands", b)]),
-                       ("Group", "Pixels", [("Type", pixel_type), ("ByteOrder", "Lsb" if order == "<" else "Msb"),
-                                            ("Base", float(base)), ("Multiplier", float(multiplier))])]
-        items: list[Any] = [("Object", "IsisCube", [("Object", "Core", core_items), *(groups or [])]),
-                            ("Object", "Label", [("Bytes", label_size)])]
-        pos = start + len(core)
-        for t, blob in zip(tables or [], table_blobs):
-            items.append(("Object", "Table", t.label_items(pos, len(blob))))
-            pos += len(blob)
-        items += list(objects or [])
-        return format_pvl(items)
-
-    text = label_text(label_bytes).encode("latin-1")
-    if len(text) > label_bytes:
-        raise CubeFormatError(f"writing {os.fspath(path)}: the label needs {len(text)} bytes, more than "
+def _label_bytes(text: str, label_bytes: int, path: Any) -> bytes:
+    """The label padded with NULs to ``label_bytes``."""
+    raw = text.encode("latin-1")
+    if len(raw) > label_bytes:
+        raise CubeFormatError(f"writing {os.fspath(path)}: the label needs {len(raw)} bytes, more than "
                               f"label_bytes={label_bytes}")
-
-    def write(tmp: Path) -> None:
-        with open(tmp, "wb") as fh:
-            fh.write(text + b"\0" * (label_bytes - len(text)))
-            fh.write(core)
-            for blob in table_blobs:
-                fh.write(blob)
-
-    return atomic_write(path, write)
+    return raw + b"\0" * (label_bytes - len(raw))
 
 
 _TABLE_BLOCK = re.compile(r"^(Object\s*=\s*Table\s*\n)(.*?)(^End_Object\s*\n)", re.MULTILINE | re.DOTALL | re.IGNORECASE)

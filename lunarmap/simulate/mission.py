@@ -15,6 +15,10 @@ For a block written by :func:`lunarmap.synthetic.write_block_mission`:
   every image of that site, with their true coordinates and noisy image
   measurements.
 
+* :func:`render_block_cubes` - every image rendered by the compiled renderer
+  (:func:`~lunarmap.simulate.compiled_render.render_cube`) into an ISIS cube, stripe by
+  stripe: the way to the full-size layout's 52,224 x 5,064-pixel images.
+
 Scene scales (chosen for the block's 1 m pixels): DTM spacing 2 m (the
 renderer's normals are central differences over one spacing), rolling terrain
 of 3 m RMS down to 40 m wavelength, craters 16 m to 200 m across
@@ -24,6 +28,13 @@ Nyquist wavelength of 1 m pixels). Without that filter the texture aliases
 differently in images of different scale and orientation: windows at true
 conjugates of a 40-degree pair correlated at 0.79 (1 ray per pixel) or 0.91
 (2 x 2 rays); with it, at 0.96 either way.
+
+The full-size layout's site (``write_block_mission(layout="full_size")``, ~6 km x 58 km under
+~0.5 m pixels) cannot hold such rasters (a 0.5 m albedo would have 1.4 G nodes): its DTM has
+4 m spacing (1,526 x 14,501 nodes, 177 MB as netCDF; rolling terrain of 3 m RMS down to 80 m
+wavelength, craters 32 m to 400 m) and its albedo is a
+:class:`~lunarmap.simulate.albedo.TiledAlbedo` at half the scales above (features down to 1.5 m,
+low-pass sigma 0.25 m, for 0.5 m pixels), evaluated wherever a ray lands.
 """
 
 from __future__ import annotations
@@ -47,11 +58,15 @@ from ..camera.shape import MOON_RADIUS
 from ..errors import BlockMissionError, InvalidInputError
 from ..orientation.drivers import image_support
 from ..synthetic.block_writing import BlockMission, open_block_mission
+from ..synthetic.labels import isis_label_groups
+from .albedo import TiledAlbedo, tiled_albedo
+from .compiled_render import RenderedCube, RenderScene, remove_stale_partials, render_cube
 from .render import render_image
 from .terrain import synthetic_albedo, synthetic_dtm
 
 __all__ = ["block_scene", "block_cameras", "render_block", "RenderedBlock", "block_check_points", "block_dtm_file",
-           "DTM_SPACING_M", "ALBEDO_SPACING_M", "ALBEDO_FEATURE_M", "ALBEDO_BLUR_M", "DTM_FILE"]
+           "render_block_cubes", "image_seed", "DTM_SPACING_M", "ALBEDO_SPACING_M", "ALBEDO_FEATURE_M", "ALBEDO_BLUR_M",
+           "DTM_FILE", "FULL_SIZE_DTM_SPACING_M"]
 
 #: DTM node spacing, m.
 DTM_SPACING_M = 2.0
@@ -62,6 +77,8 @@ ALBEDO_FEATURE_M = 3.0
 ALBEDO_BLUR_M = 0.5
 #: File name of the DTM written by :func:`render_block` (one site; see :func:`block_dtm_file`).
 DTM_FILE = "dtm.nc"
+#: DTM node spacing of the full-size layout's site, m.
+FULL_SIZE_DTM_SPACING_M = 4.0
 
 Array = NDArray[np.float64]
 
@@ -104,13 +121,16 @@ def block_dtm_file(mission: BlockMission | str | os.PathLike[str], site: int = 1
     return DTM_FILE if bm.model.n_sites == 1 else f"dtm_s{site}.nc"
 
 
-def block_scene(mission: BlockMission | str | os.PathLike[str], site: int = 1) -> tuple[xr.DataArray, xr.DataArray]:
-    """A site's DTM (heights above the 1737.4 km sphere, m) and albedo, both on ``lat`` x ``lon`` (degrees).
+def block_scene(mission: BlockMission | str | os.PathLike[str],
+                site: int = 1) -> tuple[xr.DataArray, xr.DataArray | TiledAlbedo]:
+    """A site's DTM (heights above the 1737.4 km sphere, m) on ``lat`` x ``lon`` (degrees) and its albedo.
 
     Both cover the square of side ``extent_m`` about the site (every
     footprint of its images with a 300 m border; ``manifest['site']`` for
     site 1, ``manifest['sites']`` for all) and depend only on the block (its
     seed) and the site. Different sites have different, independent scenes.
+    The albedo is a raster on the DTM's square, or, for the full-size layout (whose DTM covers the
+    site's rectangle ``extent_east_m`` x ``extent_north_m`` at 4 m), a :class:`TiledAlbedo`.
 
     Parameters
     ----------
@@ -122,6 +142,12 @@ def block_scene(mission: BlockMission | str | os.PathLike[str], site: int = 1) -
     s = bm.model.site(_site(bm, site))
     lon0, lat0, extent = s.longitude_deg, s.latitude_deg, s.extent_m
     seed_dtm, seed_albedo = _site_seeds(bm.model.seed, s.site)
+    if bm.model.layout == "full_size":
+        sp = FULL_SIZE_DTM_SPACING_M
+        dtm = synthetic_dtm(lon0, lat0, s.extents, sp, relief=3.0, wavelength=20.0 * sp, crater_density=0.01,
+                            d_min=8.0 * sp, d_max=400.0, seed=seed_dtm, radius=MOON_RADIUS)
+        dtm.attrs["block_site"] = f"{lat0:.6f} N {lon0:.6f} E"
+        return dtm, tiled_albedo(lon0, lat0, seed_albedo, radius=MOON_RADIUS)
     dtm = synthetic_dtm(lon0, lat0, extent, DTM_SPACING_M, relief=3.0, wavelength=20.0 * DTM_SPACING_M,
                         crater_density=0.01, d_min=8.0 * DTM_SPACING_M, d_max=200.0, seed=seed_dtm,
                         radius=MOON_RADIUS)
@@ -249,8 +275,7 @@ def render_block(mission: BlockMission | str | os.PathLike[str], output: str | o
     cams = block_cameras(bm, "truth", sel)
     lazy = {}
     for n in sel:
-        # the noise of an image depends on the block and the image, not on which others are rendered
-        seed = bm.model.seed * 1000 + bm.image_names.index(n)
+        seed = image_seed(bm, n)
         sampler, albedo = samplers[site_of[n]], scenes[site_of[n]][1]
         lazy[n] = render_image(cams[n], sampler, albedo, supersample=int(supersample), sun="eo", gain=255.0,
                                noise_sigma=float(noise_sigma), seed=seed, chunks=chunks,
@@ -275,6 +300,86 @@ def render_block(mission: BlockMission | str | os.PathLike[str], output: str | o
             paths[f[:-3]] = atomic_write(out_dir / f, lambda tmp, d=dtm: d.to_netcdf(tmp, engine="netcdf4"))
     first = scenes[site_of[sel[0]]]
     return RenderedBlock(images, first[0], first[1], paths, seconds, scenes)
+
+
+def image_seed(mission: BlockMission | str | os.PathLike[str], name: str) -> int:
+    """Noise seed of an image: depends on the block and the image, not on which others are rendered."""
+    bm = _mission(mission)
+    return bm.model.seed * 1000 + bm.image_names.index(name)
+
+
+def _label_groups(bm: BlockMission, name: str) -> list[Any]:
+    im = bm.manifest["images"][name]
+    timing = {"line_time_ms": im["line_time_ms"]} if "line_time_ms" in im else {"exposure_ms": im["exposure_ms"]}
+    return isis_label_groups(spacecraft_name=bm.manifest["spacecraft"]["name"], instrument_id=im["camera"],
+                             start_time=im["start_time_utc"], stop_time=im["stop_time_utc"],
+                             sclk_start=im["sclk_start"], naif_frame_code=im["instrument_id"], **timing)
+
+
+def render_block_cubes(mission: BlockMission | str | os.PathLike[str], output: str | os.PathLike[str] | None = None,
+                       *, names: Sequence[str] | None = None, supersample: int = 1, noise_sigma: float = 2.0,
+                       gain: float = 160.0, threads: int = 2, stripe_lines: int = 512,
+                       scene: tuple[xr.DataArray, Any] | None = None, write_dtm: bool = True,
+                       log: Any = None) -> dict[str, RenderedCube]:
+    """Render the block's images through their TRUTH cameras into ISIS cubes with the compiled renderer.
+
+    Each image is :func:`~lunarmap.simulate.compiled_render.render_cube` of its site's scene
+    (:func:`block_scene`; one site) with Lambert shading from the kernels' Sun direction, DN
+    ``gain * albedo * shading`` plus Gaussian noise (seeded per image, :func:`image_seed`), as
+    UnsignedByte cubes ``<image>.cub`` whose labels carry the image's ``Instrument`` and ``Kernels``
+    groups. Memory is one stripe plus the scene, whatever the image size.
+
+    Parameters
+    ----------
+    mission : BlockMission or path-like
+    output : path-like, optional
+        Folder for the cubes and ``dtm.nc`` (the block's folder by default; it must exist).
+    names : sequence of str, optional
+        Images to render (default: all).
+    supersample : int
+        Rays per pixel along each axis (1: the band-limited scene does not need more; see the module
+        docstring of :mod:`lunarmap.simulate.albedo`).
+    noise_sigma, gain : float
+        DN.
+    threads : int
+        Numba threads per image.
+    stripe_lines : int
+        Lines per stripe.
+    scene : (dtm, albedo), optional
+        The site's scene (default :func:`block_scene`'s, built once here).
+    write_dtm : bool
+        Also write the DTM (``dtm.nc``, atomically).
+    log : callable, optional
+        Called with a message after each image (progress).
+
+    Returns
+    -------
+    dict
+        Image name -> :class:`~lunarmap.simulate.compiled_render.RenderedCube`, and ``"dtm"`` -> its path
+        when written.
+    """
+    bm = _mission(mission)
+    sel = _names(bm, names)
+    if bm.model.n_sites != 1:
+        raise InvalidInputError("render_block_cubes renders blocks of one site; use render_block for several")
+    out_dir = Path(output).expanduser() if output is not None else bm.folder
+    if not out_dir.is_dir():
+        raise BlockMissionError(f"output folder {out_dir} does not exist")
+    dtm, albedo = scene if scene is not None else block_scene(bm)
+    rscene = RenderScene.of(dtm, albedo)
+    cams = block_cameras(bm, "truth", sel)
+    done: dict[str, Any] = {}
+    for n in sel:
+        path = out_dir / f"{n}.cub"
+        remove_stale_partials(path)   # what a killed earlier render of this cube left
+        done[n] = render_cube(cams[n], rscene, path, supersample=supersample, sun="eo", gain=gain,
+                              noise_sigma=noise_sigma, seed=image_seed(bm, n), stripe_lines=stripe_lines,
+                              threads=threads, groups=_label_groups(bm, n))
+        if log is not None:
+            log(f"rendered {n}: {done[n].lines} x {done[n].samples} pixels in {done[n].seconds:.1f} s")
+    if write_dtm:
+        done["dtm"] = atomic_write(out_dir / block_dtm_file(bm), lambda tmp: dtm.to_netcdf(tmp, engine="netcdf4"))
+    return done
 
 
 def block_check_points(mission: BlockMission | str | os.PathLike[str], n: int = 20, *, sigma_px: float = 0.3,
@@ -345,7 +450,8 @@ def block_check_points(mission: BlockMission | str | os.PathLike[str], n: int = 
     sampler = DtmSampler(dtm)
     st = bm.model.site(site)
     rng = np.random.default_rng(int(seed))
-    half = 0.5 * st.extent_m
+    ext_e, ext_n = st.extents
+    half = 0.5 * np.array([[ext_e], [ext_n]]) if ext_e != ext_n else 0.5 * st.extent_m
     lat0, lon0 = np.radians(st.latitude_deg), st.longitude_deg
     kept: list[Array] = []
     n_kept = 0

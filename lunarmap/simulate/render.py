@@ -64,7 +64,7 @@ class RenderSpec:
 
     camera: Any
     dtm: DtmSampler
-    ortho: RasterSampler
+    ortho: Any
     radius: float
     supersample: int
     sun: Array | None
@@ -134,9 +134,10 @@ def render_image(camera: Any, dtm: xr.DataArray | DtmSampler, ortho: xr.DataArra
         ``.interior.n_lines`` / ``.n_samples`` and, for ``sun="eo"``, ``.eo``.
     dtm : xarray.DataArray or DtmSampler
         Heights (metres above ``camera.shape.reference_radius``) on ``lat`` x ``lon`` (degrees).
-    ortho : xarray.DataArray
+    ortho : xarray.DataArray or callable
         Orthoimage or albedo, on (``lat``, ``lon``) or projected (``y``, ``x``) with
-        ``attrs["crs"]``; see :class:`RasterSampler`.
+        ``attrs["crs"]`` (see :class:`RasterSampler`), or any ``ortho(lon, lat)`` -> values
+        sampler such as a :class:`~lunarmap.simulate.albedo.TiledAlbedo`.
     supersample : int
         Rays per pixel along each axis (box-filter anti-aliasing).
     sun : None, "eo" or array_like (3,)
@@ -176,7 +177,9 @@ def render_image(camera: Any, dtm: xr.DataArray | DtmSampler, ortho: xr.DataArra
     if not (0 <= l0 < l1 <= nl and 0 <= s0 < s1 <= ns):
         raise InvalidInputError(f"window {window} is empty or outside the {nl} x {ns} image")
     sampler = dtm if isinstance(dtm, DtmSampler) else DtmSampler(dtm)
-    spec = RenderSpec(camera=camera, dtm=sampler, ortho=RasterSampler(ortho),
+    if not isinstance(ortho, xr.DataArray) and not callable(ortho):
+        raise InvalidInputError(f"ortho must be an xarray.DataArray or a sampler ortho(lon, lat), got {type(ortho).__name__}")
+    spec = RenderSpec(camera=camera, dtm=sampler, ortho=RasterSampler(ortho) if isinstance(ortho, xr.DataArray) else ortho,
                       radius=float(camera.shape.reference_radius), supersample=int(supersample),
                       sun=_sun_direction(camera, sun), gain=float(gain), offset=float(offset),
                       noise_sigma=float(noise_sigma), saturation=saturation, seed=int(seed))

@@ -124,7 +124,7 @@ def _as_dataarray(values: Array, lat: Array, lon: Array, name: str, units: str, 
                         attrs={"units": units, **attrs})
 
 
-def synthetic_dtm(lon0: float, lat0: float, extent: float, spacing: float, relief: float = 5.0,
+def synthetic_dtm(lon0: float, lat0: float, extent: float | tuple[float, float], spacing: float, relief: float = 5.0,
                   wavelength: float | None = None, crater_density: float = 0.01, d_min: float | None = None,
                   d_max: float | None = None, seed: int = 0, radius: float = MOON_RADIUS) -> xr.DataArray:
     """A synthetic DTM: craters over rolling terrain.
@@ -133,17 +133,19 @@ def synthetic_dtm(lon0: float, lat0: float, extent: float, spacing: float, relie
     ----------
     lon0, lat0 : float
         Centre, degrees.
-    extent, spacing : float
-        Square size and node spacing, metres.
+    extent : float or (float, float)
+        Side of the square, or sides east-west and north-south of the rectangle, metres.
+    spacing : float
+        Node spacing, metres.
     relief : float
         Standard deviation of the rolling terrain, metres.
     wavelength : float, optional
         Shortest wavelength of the rolling terrain, metres (default ``20 * spacing``).
     crater_density : float
         Craters (``D >= d_min``) per square of side ``d_min``: the scene gets
-        ``density * (extent / d_min)^2`` craters (scale-free).
+        ``density * area / d_min^2`` craters (scale-free).
     d_min, d_max : float, optional
-        Crater diameter range, metres (defaults ``8 * spacing`` and ``extent / 4``).
+        Crater diameter range, metres (defaults ``8 * spacing`` and a quarter of the shorter side).
     seed : int
         Random seed.
 
@@ -156,8 +158,13 @@ def synthetic_dtm(lon0: float, lat0: float, extent: float, spacing: float, relie
     lat, lon, north, east = local_grid(lon0, lat0, extent, spacing, radius)
     h = rolling_terrain(north, east, relief, wavelength or 20.0 * spacing, rng)
     d_min = d_min or 8.0 * spacing
-    d_max = d_max or extent / 4.0
-    n_craters = int(round(crater_density * (extent / d_min) ** 2))
+    if np.isscalar(extent):
+        d_max = d_max or extent / 4.0
+        n_craters = int(round(crater_density * (extent / d_min) ** 2))
+    else:
+        ew, ns = (float(v) for v in extent)  # type: ignore[union-attr]
+        d_max = d_max or min(ew, ns) / 4.0
+        n_craters = int(round(crater_density * ew * ns / d_min ** 2))
     if n_craters and d_max > d_min:
         h = add_craters(h, north, east, n_craters, d_min, d_max, rng)
     return _as_dataarray(h, lat, lon, "height", "m", spacing_m=spacing, radius_m=radius,

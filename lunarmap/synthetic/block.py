@@ -63,7 +63,8 @@ from scipy.spatial.transform import Rotation
 from ..errors import InvalidInputError
 from . import textkernels
 from .attitude import NadirAttitude
-from .block_cameras import BLOCK_CAMERAS, BLOCK_FRAME, BLOCK_NAC, BLOCK_TC, BlockCameraSpec
+from .block_cameras import (BLOCK_CAMERAS, BLOCK_FRAME, BLOCK_NAC, BLOCK_TC, FULL_NAC_LINES, FULL_SIZE_CAMERAS,
+                            BlockCameraSpec)
 from .bodies import (MOON_RADIUS_KM, frame_rotation, j2000_to_iau_moon, moon_spin_rate, moon_state_ssb,
                      sun_state_ssb)
 from .mission import ALTITUDE_KM, FRAME_EXPOSURE_MS, MISSION_START_TDB, ImageTiming, tdb_to_et
@@ -76,7 +77,8 @@ __all__ = [
     "MIN_SITE_HALF_WIDTH",
     "MIN_SLEW_S", "MULTI_SITE_NAVIGATION", "image_name", "image_footprint",
     "SITE_TRACK_OFFSET_M", "PASS_HALF_WIDTH", "BLOCK_ORBITS", "PUSHBROOM_LINES", "FRAME_ADVANCE",
-    "TRUTH_SPK_STEP", "TRUTH_CK_STEP", "NAV_SPK_STEP", "NAV_CK_STEP", "SPK_MARGIN",
+    "TRUTH_SPK_STEP", "TRUTH_CK_STEP", "NAV_SPK_STEP", "NAV_CK_STEP", "SPK_MARGIN", "LAYOUTS",
+    "FULL_SIZE_ORBIT_STAGGER", "FULL_SIZE_ORBITS",
 ]
 
 #: Default site latitude, degrees (planetocentric).
@@ -118,6 +120,16 @@ MIN_SLEW_S = 20.0
 #: about 25 m and 25 urad at the outer sites of four, as much as the offsets).
 MULTI_SITE_NAVIGATION = NavigationErrorSpec(position_drift_m_per_s=(0.02, 0.1),
                                             attitude_drift_rad_per_s=(0.02e-6, 0.1e-6))
+
+#: Image layouts: ``"block"`` (four ~1 m-pixel images of three cameras per pass, the default) and
+#: ``"full_size"`` (full-size LRO-NAC-like NAC-L and NAC-R images, two along-track strips per pass).
+LAYOUTS = ("block", "full_size")
+#: Along-track shift between the strips of consecutive orbits in the full-size layout, fraction of an image.
+#: The two strips of one pass follow each other without overlap (an overlap would be the same exposures
+#: twice: rays from the same place, no parallax), so the other orbit's strips straddle their seam.
+FULL_SIZE_ORBIT_STAGGER = 0.2
+#: Default orbits of the full-size layout.
+FULL_SIZE_ORBITS = 2
 
 _KINDS = ("nac", "tc", "frame_a", "frame_b")
 Array = NDArray[np.float64]
@@ -230,12 +242,23 @@ class BlockSite:
         The site (planetocentric), degrees.
     extent_m : float
         Side of the square around the site that every footprint of its images fits in, m.
+    extent_east_m, extent_north_m : float, optional
+        Sides of the rectangle (east-west, north-south) that every footprint fits in, m, when it is
+        not that square (the full-size layout's long strips); see :attr:`extents`.
     """
 
     site: int
     latitude_deg: float
     longitude_deg: float
     extent_m: float = 0.0
+    extent_east_m: float | None = None
+    extent_north_m: float | None = None
+
+    @property
+    def extents(self) -> tuple[float, float]:
+        """East-west and north-south sides of the rectangle about the site holding its footprints, m."""
+        return (self.extent_m if self.extent_east_m is None else self.extent_east_m,
+                self.extent_m if self.extent_north_m is None else self.extent_north_m)
 
 
 @dataclass(frozen=True)
@@ -267,6 +290,8 @@ class BlockModel:
         Every site (site 1 first).
     site_spacing_deg : float
         Latitude step between consecutive sites, degrees (0 with one site).
+    layout : str
+        One of :data:`LAYOUTS`.
     """
 
     seed: int
@@ -287,6 +312,7 @@ class BlockModel:
     cameras: tuple[BlockCameraSpec, ...] = field(default=BLOCK_CAMERAS)
     sites: tuple[BlockSite, ...] = ()
     site_spacing_deg: float = 0.0
+    layout: str = "block"
 
     # -- truth -------------------------------------------------------------------
     def state(self, et: ArrayLike) -> Array:
@@ -448,6 +474,18 @@ class BlockModel:
         self.site(site)
         return tuple(im.name for im in self.images if im.site == site)
 
+    def bus_ground(self, et: ArrayLike, look: ArrayLike = (0.0, 0.0, 1.0)) -> Array:
+        """Where a bus-frame look vector (default the bus +z axis) meets the reference sphere, body-fixed m."""
+        et = np.asarray(et, dtype=float)
+        m = j2000_to_iau_moon(et) @ np.swapaxes(self.bus_matrix(et), -1, -2)
+        d = np.einsum("...ij,j->...i", m, np.asarray(look, dtype=float))
+        return _ray_sphere(self.position_body_fixed(et), d, MOON_RADIUS_KM * 1000.0)
+
+    def pointing_ground(self, et: ArrayLike) -> Array:
+        """The ground point the bus is pointed at the site with: the NAC's boresight, or the bus +z axis
+        (between the full-size layout's NAC-L and NAC-R)."""
+        return self.boresight_ground(BLOCK_NAC.naif_id, et) if self.layout == "block" else self.bus_ground(et)
+
     def boresight_ground(self, naif_id: int, et: ArrayLike, look: ArrayLike = (0.0, 0.0, 1.0)) -> Array:
         """Where a sensor-frame look vector meets the reference sphere, body-fixed m (truth, no distortion)."""
         et = np.asarray(et, dtype=float)
@@ -483,7 +521,11 @@ def _is_number(v: Any) -> bool:
 
 
 def _check_args(seed: Any, orbits: Any, latitude: Any, sites: Any = 1, spacing: Any = SITE_SPACING_DEG,
-                half_width: Any = None) -> None:
+                half_width: Any = None, layout: Any = "block") -> None:
+    if layout not in LAYOUTS:
+        raise InvalidInputError(f"layout must be one of {LAYOUTS}, got {layout!r}")
+    if layout == "full_size" and sites != 1:
+        raise InvalidInputError(f"the full-size layout has one site, got sites={sites!r}")
     if not _is_int(seed) or seed < 0:
         raise InvalidInputError(f"seed must be a non-negative integer, got {seed!r}")
     if not _is_int(orbits) or not 2 <= orbits <= 4:
@@ -512,7 +554,7 @@ def _check_args(seed: Any, orbits: Any, latitude: Any, sites: Any = 1, spacing: 
 def build_block_model(seed: int = 0, *, orbits: int = BLOCK_ORBITS, site_latitude_deg: float = SITE_LATITUDE_DEG,
                       navigation: NavigationErrorSpec | None = None, sites: int = 1,
                       site_spacing_deg: float = SITE_SPACING_DEG,
-                      site_half_width_s: float | None = None) -> BlockModel:
+                      site_half_width_s: float | None = None, layout: str = "block") -> BlockModel:
     """The truth and navigation model of the imaging block (no files, no SPICE).
 
     Parameters
@@ -539,12 +581,21 @@ def build_block_model(seed: int = 0, *, orbits: int = BLOCK_ORBITS, site_latitud
         Half-width of each pass window of a block of several sites, seconds
         (default :data:`MULTI_SITE_HALF_WIDTH`; at least :data:`MIN_SITE_HALF_WIDTH`):
         shorter windows let sites lie closer (e.g. 12 s and 2.5 degrees: 40 sites, 480 images).
+    layout : str
+        ``"block"`` (default): per pass the NAC-like, TC-like and two frame images of ~1 m pixels.
+        ``"full_size"`` (one site): per pass four full-size LRO-NAC-like images (52,224 lines x
+        5,064 samples, ~0.5 m pixels), NAC-L and NAC-R side by side (their footprints overlap by
+        ~140 pixels) in two along-track strips that follow each other (one line apart); the strips
+        of consecutive orbits are shifted along track by :data:`FULL_SIZE_ORBIT_STAGGER` of an image,
+        so that every strip overlaps both strips of the other orbit. The bus +z axis (between the
+        two NACs) is pointed at the site at each pass's reference epoch. Names ``orbit<k>_nacl_a``, ``orbit<k>_nacr_a``, ``orbit<k>_nacl_b``,
+        ``orbit<k>_nacr_b`` (``a``: the earlier, southern strip of the northbound pass).
 
     Returns
     -------
     BlockModel
     """
-    _check_args(seed, orbits, site_latitude_deg, sites, site_spacing_deg, site_half_width_s)
+    _check_args(seed, orbits, site_latitude_deg, sites, site_spacing_deg, site_half_width_s, layout)
     n_sites = int(sites)
     if navigation is None:
         spec = NavigationErrorSpec() if n_sites == 1 else MULTI_SITE_NAVIGATION
@@ -564,8 +615,9 @@ def build_block_model(seed: int = 0, *, orbits: int = BLOCK_ORBITS, site_latitud
     wobble_period = tuple(float(p) for p in rng.uniform(1500.0, 2400.0, 3))
     wobble_phase = tuple(float(p) for p in rng.uniform(0.0, 2.0 * np.pi, 3))
     misalign = rng.choice([-1.0, 1.0], (3, 3)) * rng.uniform(0.01, 0.05, (3, 3))
+    cameras = BLOCK_CAMERAS if layout == "block" else FULL_SIZE_CAMERAS
     mounting = {c.naif_id: tuple(float(round(n + m, 6)) for n, m in zip(c.nominal_angles_deg, misalign[i]))
-                for i, c in enumerate(BLOCK_CAMERAS)}
+                for i, c in enumerate(cameras)}
 
     start = tdb_to_et(MISSION_START_TDB)
     # first crossing of the site latitude 60 degrees of orbit (~19 min) after the start
@@ -600,7 +652,7 @@ def build_block_model(seed: int = 0, *, orbits: int = BLOCK_ORBITS, site_latitud
                       sclk_zero_et=tdb_to_et(textkernels.SCLK_ZERO_TDB),
                       orbit=orbit, nadir=nadir, passes=(), mounting_angles_deg=mounting, images=(),
                       navigation=None, navigation_spec=spec,  # type: ignore[arg-type]
-                      sites=tuple(site_list), site_spacing_deg=spacing)
+                      cameras=cameras, sites=tuple(site_list), site_spacing_deg=spacing, layout=str(layout))
     half = PASS_HALF_WIDTH if n_sites == 1 else float(site_half_width_s or MULTI_SITE_HALF_WIDTH)
     passes = []
     for k in range(orbits):
@@ -626,7 +678,7 @@ def build_block_model(seed: int = 0, *, orbits: int = BLOCK_ORBITS, site_latitud
     model = _replace(stub, passes=tuple(passes), navigation=nav,
                      start_et=passes[0].start_et - SPK_MARGIN, end_et=passes[-1].end_et + SPK_MARGIN)
     model = _replace(model, images=tuple(_plan_images(model)))
-    sized = tuple(dataclasses.replace(s, extent_m=_site_extent(model, s.site)) for s in site_list)
+    sized = tuple(_sized(model, s) for s in site_list)
     return _replace(model, sites=sized, site_extent_m=sized[0].extent_m)
 
 
@@ -644,7 +696,7 @@ def _point_at_site(stub: BlockModel, t_cross: float, site: Array, east: Array, n
 
     def miss(x: Array) -> Array:
         t = t_cross + x[0]
-        g = _with_roll(stub, x[1], t).boresight_ground(BLOCK_NAC.naif_id, t)
+        g = _with_roll(stub, x[1], t).pointing_ground(t)
         d = g - site
         return np.array([d @ east, d @ north])  # m
 
@@ -685,8 +737,30 @@ def _pushbroom_line_time(model: BlockModel, cam: BlockCameraSpec, t: float) -> f
     return round(float(np.linalg.norm(g2 - g1) / np.linalg.norm(v)), 9)
 
 
+def _plan_full_size(model: BlockModel) -> list[BlockImagePlan]:
+    """The full-size layout's images of every pass: strip ``a`` then ``b``, NAC-L then NAC-R in each."""
+    out = []
+    for k in range(1, model.orbits + 1):
+        p = model.pass_of(k, 1)
+        # the strips' centre times: the pass's reference (the bus axis on the site) -/+ half a strip and
+        # half a line (strip b starts one line after strip a ends), plus this orbit's stagger; the line
+        # time of the first camera at the reference serves both cameras
+        nacl = model.cameras[0]
+        lt = _pushbroom_line_time(model, nacl, p.epoch)
+        duration = FULL_NAC_LINES * lt
+        stagger = (k - 0.5 * (model.orbits + 1)) * FULL_SIZE_ORBIT_STAGGER * duration
+        shift = 0.5 * (duration + lt)
+        for strip, centre in (("a", p.epoch + stagger - shift), ("b", p.epoch + stagger + shift)):
+            for cam in model.cameras:
+                kind = f"{cam.kind}_{strip}"
+                out.append(BlockImagePlan(image_name(1, k, kind, 1), cam, k, kind, FULL_NAC_LINES, centre, lt, None, 1))
+    return out
+
+
 def _plan_images(model: BlockModel) -> list[BlockImagePlan]:
     """The four images of every pass: site by site, orbit by orbit."""
+    if model.layout == "full_size":
+        return _plan_full_size(model)
     out = []
     n = model.n_sites
     for s in model.sites:
@@ -727,20 +801,38 @@ def image_footprint(model: BlockModel, im: BlockImagePlan) -> Array:
     return np.array([model.boresight_ground(im.camera.naif_id, t, look) for t, look in zip(times, corners)])
 
 
-def _site_extent(model: BlockModel, site: int) -> float:
-    """Side (m, rounded up to 100 m) of a square about a site holding its images' footprints plus 300 m."""
+def _site_reach(model: BlockModel, site: int) -> tuple[float, float]:
+    """Largest east-west and north-south distances (m) of a site's image footprint corners from the site."""
     s = model.site(site)
     centre = model.site_xyz(site=site)
     east, north = _east_north(s.longitude_deg, s.latitude_deg)
-    reach = 0.0
+    reach_e = reach_n = 0.0
     for im in model.images:
         if im.site != site:
             continue
         for g in image_footprint(model, im):
             d = g - centre
-            reach = max(reach, abs(float(d @ east)), abs(float(d @ north)))
+            reach_e, reach_n = max(reach_e, abs(float(d @ east))), max(reach_n, abs(float(d @ north)))
+    return reach_e, reach_n
+
+
+def _side(reach: float) -> float:
     # 300 m: terrain relief moves footprints (tens of metres) and the DTM needs a border
     return float(100.0 * np.ceil((2.0 * reach + 600.0) / 100.0))
+
+
+def _site_extent(model: BlockModel, site: int) -> float:
+    """Side (m, rounded up to 100 m) of a square about a site holding its images' footprints plus 300 m."""
+    return _side(max(_site_reach(model, site)))
+
+
+def _sized(model: BlockModel, s: BlockSite) -> BlockSite:
+    """A site with its extent; the full-size layout's long strips also get their rectangle."""
+    if model.layout == "block":
+        return dataclasses.replace(s, extent_m=_site_extent(model, s.site))
+    reach_e, reach_n = _site_reach(model, s.site)
+    return dataclasses.replace(s, extent_m=_side(max(reach_e, reach_n)), extent_east_m=_side(reach_e),
+                               extent_north_m=_side(reach_n))
 
 
 def block_geometry(model: BlockModel) -> dict[str, Any]:

@@ -41,7 +41,8 @@ __all__ = [
     "BlockCameraSpec", "BLOCK_NAC", "BLOCK_TC", "BLOCK_FRAME", "BLOCK_CAMERAS", "PITCH_DEG",
     "BLK_NAC_NAME", "BLK_NAC_ID", "BLK_TC_NAME", "BLK_TC_ID", "BLK_FRAME_NAME", "BLK_FRAME_ID",
     "KAGUYA_TC1_COEF_X", "KAGUYA_TC1_COEF_Y", "KAGUYA_TC1_BORESIGHT_MM", "KAGUYA_SCALE_RADIUS",
-    "KAGUYA_SCALE_SIZE",
+    "KAGUYA_SCALE_SIZE", "FULL_NACL", "FULL_NACR", "FULL_SIZE_CAMERAS", "FULL_NAC_ROLL_DEG", "FULL_NAC_LINES",
+    "FULL_NACL_NAME", "FULL_NACL_ID", "FULL_NACR_NAME", "FULL_NACR_ID",
 ]
 
 BLK_NAC_NAME = "SIM_BLK_NAC"
@@ -50,6 +51,10 @@ BLK_TC_NAME = "SIM_BLK_TC"
 BLK_TC_ID = -990400
 BLK_FRAME_NAME = "SIM_BLK_FRAME"
 BLK_FRAME_ID = -990500
+FULL_NACL_NAME = "SIM_FULL_NACL"
+FULL_NACL_ID = -990600
+FULL_NACR_NAME = "SIM_FULL_NACR"
+FULL_NACR_ID = -990610
 
 #: Forward pitch of the TC and aft pitch of the frame camera relative to the bus, degrees.
 PITCH_DEG = 6.0
@@ -105,7 +110,8 @@ class BlockCameraSpec(CameraSpec):
     @property
     def kind(self) -> str:
         """``'nac'``, ``'tc'`` or ``'frame'``: the short name used in image names."""
-        return {BLK_NAC_ID: "nac", BLK_TC_ID: "tc", BLK_FRAME_ID: "frame"}[self.naif_id]
+        return {BLK_NAC_ID: "nac", BLK_TC_ID: "tc", BLK_FRAME_ID: "frame", FULL_NACL_ID: "nacl",
+                FULL_NACR_ID: "nacr"}[self.naif_id]
 
 
 _LS_PITCH = 0.007  # mm, the LRO NAC and Kaguya TC pixel pitch
@@ -145,3 +151,36 @@ BLOCK_FRAME = BlockCameraSpec(
 
 #: The block's cameras in IK/FK order.
 BLOCK_CAMERAS = (BLOCK_NAC, BLOCK_TC, BLOCK_FRAME)
+
+
+#: Roll of the full-size NAC-L (+) and NAC-R (-) about the bus +x axis, degrees: their fields of view
+#: (5,064 x ~10 urad = 2.9 degrees each, principal points off-centre as LRO's) meet across the bus
+#: +z axis, their footprints overlapping by about 70 m (140 pixels), as LRO's two NACs' do.
+FULL_NAC_ROLL_DEG = 1.42
+#: Lines of a full-size NAC image (an LRO NAC EDR's 52,224).
+FULL_NAC_LINES = 52224
+
+#: Full-size LRO-NAC-L-like pushbroom: LRO's IK values (LRO_LROC_V18.TI: f, principal point, OD_K,
+#: TRANSX/TRANSY); about 0.5 m pixels from the block's ~50 km orbit.
+FULL_NACL = BlockCameraSpec(
+    name=FULL_NACL_NAME, naif_id=FULL_NACL_ID, camera_type="LINESCAN", samples=5064, lines=1,
+    focal_length_mm=699.62, pixel_pitch_mm=_LS_PITCH, boresight_sample=2548.0, boresight_line=0.0,
+    transx=(0.0, 0.0, _LS_PITCH), transy=(0.0, _LS_PITCH, 0.0),
+    distortion_model="lrolrocnac", od_k=(1.81e-5,),
+    description="pushbroom, 5064 samples, f = 699.62 mm, 7 um pixels (LRO NAC-L's IK values).",
+    nominal_angles_deg=(FULL_NAC_ROLL_DEG, 0.0, 0.0),
+)
+
+#: Full-size LRO-NAC-R-like pushbroom: LRO's NAC-R frame is turned 180 degrees about its boresight
+#: and its TRANSX/TRANSY are negated (LRO_LROC_V18.TI), so its samples run the same way as NAC-L's.
+FULL_NACR = BlockCameraSpec(
+    name=FULL_NACR_NAME, naif_id=FULL_NACR_ID, camera_type="LINESCAN", samples=5064, lines=1,
+    focal_length_mm=701.57, pixel_pitch_mm=_LS_PITCH, boresight_sample=2496.0, boresight_line=0.0,
+    transx=(0.0, 0.0, -_LS_PITCH), transy=(0.0, -_LS_PITCH, 0.0),
+    distortion_model="lrolrocnac", od_k=(1.83e-5,),
+    description="pushbroom, 5064 samples, f = 701.57 mm, 7 um pixels (LRO NAC-R's IK values).",
+    nominal_angles_deg=(-FULL_NAC_ROLL_DEG, 0.0, 180.0),
+)
+
+#: The full-size layout's cameras in IK/FK order.
+FULL_SIZE_CAMERAS = (FULL_NACL, FULL_NACR)

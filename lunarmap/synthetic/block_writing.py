@@ -37,9 +37,9 @@ from ..spice import KernelSet, kernels
 from ..spice import queries as q
 from ..spice.writer import Append, CkSegment, SpkSegment, Value, write_ck, write_spk, write_text_kernel
 from . import ids, textkernels
-from .block import (MULTI_SITE_NAVIGATION, NAV_CK_STEP, NAV_SPK_STEP, SITE_SPACING_DEG, TRUTH_CK_STEP,
+from .block import (FULL_SIZE_ORBITS, MULTI_SITE_NAVIGATION, NAV_CK_STEP, NAV_SPK_STEP, SITE_SPACING_DEG, TRUTH_CK_STEP,
                     TRUTH_SPK_STEP, BlockModel, BlockPass, block_geometry, build_block_model)
-from .block_cameras import BLOCK_CAMERAS, BlockCameraSpec
+from .block_cameras import FULL_SIZE_CAMERAS, BlockCameraSpec
 from .bodies import MOON_RADIUS_KM, moon_state_ssb, sun_state_ssb
 from .labels import isis_label
 from .mission import PLANET_MARGIN, PLANET_STEP, SPK_DEGREE
@@ -48,6 +48,7 @@ from .nav_errors import NavigationErrorSpec
 __all__ = [
     "BlockMission", "write_block_mission", "open_block_mission", "BLOCK_MANIFEST_NAME", "TRUTH_METAKERNEL",
     "NAVIGATION_METAKERNEL", "SHARED_KERNELS", "TRUTH_KERNELS", "NAVIGATION_KERNELS", "block_fk", "block_ik",
+    "shared_kernels",
 ]
 
 BLOCK_MANIFEST_NAME = "block_mission.json"
@@ -58,6 +59,14 @@ SHARED_KERNELS = ("lunarmap_sim.tls", "lunarmap_sim.tsc", "lunarmap_sim.tpc", "l
                   "lunarmap_block_nac.ti", "lunarmap_block_tc.ti", "lunarmap_block_frame.ti",
                   "lunarmap_sim_planets.bsp")
 TRUTH_KERNELS = ("block_truth.bsp", "block_truth.bc")
+
+
+def shared_kernels(layout: str = "block") -> tuple[str, ...]:
+    """The kernels of both sets of a layout, in load order (:data:`SHARED_KERNELS` for the default)."""
+    if layout == "block":
+        return SHARED_KERNELS
+    iks = tuple(f"lunarmap_block_{c.kind}.ti" for c in FULL_SIZE_CAMERAS)
+    return (*SHARED_KERNELS[:4], *iks, SHARED_KERNELS[-1])
 NAVIGATION_KERNELS = ("block_navigation.bsp", "block_navigation.bc")
 
 
@@ -66,8 +75,8 @@ NAVIGATION_KERNELS = ("block_navigation.bsp", "block_navigation.bc")
 def block_fk(model: BlockModel) -> tuple[str, list[tuple[str, Mapping[str, Value]]]]:
     """Frames kernel: spacecraft and camera names, the CK bus frame and the three camera TK frames."""
     names: dict[str, Value] = {
-        "NAIF_BODY_NAME": Append([ids.SPACECRAFT_NAME, *(c.name for c in BLOCK_CAMERAS)]),
-        "NAIF_BODY_CODE": Append([ids.SPACECRAFT_ID, *(c.naif_id for c in BLOCK_CAMERAS)]),
+        "NAIF_BODY_NAME": Append([ids.SPACECRAFT_NAME, *(c.name for c in model.cameras)]),
+        "NAIF_BODY_CODE": Append([ids.SPACECRAFT_ID, *(c.naif_id for c in model.cameras)]),
     }
     b = ids.BUS_FRAME_ID
     bus: dict[str, Value] = {
@@ -76,10 +85,19 @@ def block_fk(model: BlockModel) -> tuple[str, list[tuple[str, Mapping[str, Value
         f"CK_{b}_SPK": ids.SPACECRAFT_ID,
     }
     sections: list[tuple[str, Mapping[str, Value]]] = [("Names and ids.", names), ("Spacecraft bus (CK frame).", bus)]
-    for c in BLOCK_CAMERAS:
+    for c in model.cameras:
         sections.append((f"{c.name}: {c.description}",
                          textkernels._tk(c.naif_id, c.frame_name, ids.BUS_FRAME, model.mounting_angles_deg[c.naif_id])))
     over = "the site" if model.n_sites == 1 else "a site"
+    if model.layout == "full_size":
+        comments = ("Frames of the LUNARMAP-SIM full-size imaging block (lunarmap.synthetic.write_block_mission).\n"
+                    f"  {ids.BUS_FRAME} ({b}): spacecraft bus, CK frame relative to J2000; +z nadir, +x roughly\n"
+                    f"      along the ground-track velocity; rolled about +x during each pass over {over}.\n"
+                    "  Cameras (TK frames relative to the bus, boresight +z): SIM_FULL_NACL and SIM_FULL_NACR are\n"
+                    "  rolled by +/-1.42 degrees about the bus +x so that their fields of view meet across the bus\n"
+                    "  +z axis; SIM_FULL_NACR is also turned 180 degrees about its boresight, as LRO's NAC-R; each\n"
+                    "  with a random misalignment of a few hundredths of a degree.")
+        return comments, sections
     comments = ("Frames of the LUNARMAP-SIM imaging block (lunarmap.synthetic.write_block_mission).\n"
                 f"  {ids.BUS_FRAME} ({b}): spacecraft bus, CK frame relative to J2000; +z nadir, +x roughly\n"
                 f"      along the ground-track velocity; rolled about +x during each pass over {over}.\n"
@@ -114,8 +132,8 @@ def block_ik(cam: BlockCameraSpec) -> tuple[str, Any]:
     return comments, [(sections[0][0], geometry), (sections[1][0], fov), sections[2]]
 
 
-def _metakernel_text(kind: str) -> str:
-    files = [*SHARED_KERNELS, *(TRUTH_KERNELS if kind == "truth" else NAVIGATION_KERNELS)]
+def _metakernel_text(kind: str, layout: str = "block") -> str:
+    files = [*shared_kernels(layout), *(TRUTH_KERNELS if kind == "truth" else NAVIGATION_KERNELS)]
     what = ("TRUTH: the true trajectory and attitude" if kind == "truth"
             else "NAVIGATION: trajectory and attitude with per-orbit navigation errors")
     lines = ["KPL/MK", "", "Meta-kernel of the LUNARMAP-SIM imaging block written by",
@@ -148,11 +166,11 @@ def _comments(model: BlockModel, what: str) -> list[str]:
 
 
 def _write_kernels(model: BlockModel, d: Path) -> None:
-    lsk, sclk, pck, fk, *iks, planets = (d / f for f in SHARED_KERNELS)
+    lsk, sclk, pck, fk, *iks, planets = (d / f for f in shared_kernels(model.layout))
     for path, kind, (c, s) in ((lsk, "LSK", textkernels.lsk()), (sclk, "SCLK", textkernels.sclk(model.sclk_zero_et)),
                                (pck, "PCK", textkernels.pck()), (fk, "FK", block_fk(model))):
         write_text_kernel(path, kind, s, c)
-    for cam, path in zip(BLOCK_CAMERAS, iks):
+    for cam, path in zip(model.cameras, iks):
         c, s = block_ik(cam)
         write_text_kernel(path, "IK", s, c)
 
@@ -225,7 +243,7 @@ def _image_records(model: BlockModel, d: Path) -> dict[str, Any]:
     """Write the labels (UTC via SPICE with the LSK and SCLK loaded) and return the manifest's image entries."""
     geometry = block_geometry(model)["images"]
     out: dict[str, Any] = {}
-    kset = KernelSet.from_files([d / SHARED_KERNELS[0], d / SHARED_KERNELS[1]])
+    kset = KernelSet.from_files([d / SHARED_KERNELS[0], d / SHARED_KERNELS[1]])   # LSK and SCLK: every layout
     with kernels(kset):
         for im in model.images:
             start = model.tick_aligned(im.planned_start_et)
@@ -265,12 +283,13 @@ def _manifest(model: BlockModel, images: dict[str, Any], params: dict[str, Any])
     o = model.orbit
     geo = block_geometry(model)
     cams = {}
-    for c in BLOCK_CAMERAS:
+    shared = shared_kernels(model.layout)
+    for c in model.cameras:
         cams[c.name] = {"id": c.naif_id, "frame": c.frame_name, "camera_type": c.camera_type,
                         "distortion_model": c.distortion_model, "samples": c.samples, "detector_lines": c.lines,
                         "focal_length_mm": c.focal_length_mm, "pixel_pitch_mm": c.pixel_pitch_mm,
                         "ifov_rad": c.ifov, "mounting_angles_deg": list(model.mounting_angles_deg[c.naif_id]),
-                        "ik": SHARED_KERNELS[4 + BLOCK_CAMERAS.index(c)]}
+                        "ik": shared[4 + model.cameras.index(c)]}
     nav = model.navigation.to_dict()
     several = model.n_sites > 1
     if several:
@@ -300,7 +319,10 @@ def _manifest(model: BlockModel, images: dict[str, Any], params: dict[str, Any])
         "site": {"latitude_deg": model.site_latitude_deg, "longitude_deg": model.site_longitude_deg,
                  "extent_m": model.site_extent_m,
                  "note": "every image footprint fits in the square of side extent_m centred on the site"
-                 + (" (site 1 and its images; every site: sites)" if several else "")},
+                 + (" (site 1 and its images; every site: sites)" if several else "")
+                 + ("; and in the rectangle of sides extent_east_m x extent_north_m" if model.layout != "block" else ""),
+                 **({"extent_east_m": model.site(1).extents[0], "extent_north_m": model.site(1).extents[1]}
+                    if model.layout != "block" else {})},
         **site,
         "instruments": cams,
         **orbits,
@@ -330,7 +352,7 @@ def _manifest(model: BlockModel, images: dict[str, Any], params: dict[str, Any])
         },
         "images": images,
         "convergence_deg": geo["convergence_deg"],
-        "kernels": {"shared": list(SHARED_KERNELS), "truth": list(TRUTH_KERNELS),
+        "kernels": {"shared": list(shared), "truth": list(TRUTH_KERNELS),
                     "navigation": list(NAVIGATION_KERNELS)},
         "metakernels": {"truth": TRUTH_METAKERNEL, "navigation": NAVIGATION_METAKERNEL},
     }
@@ -396,12 +418,15 @@ class BlockMission:
 
 
 def _params(orbits: int, site_latitude_deg: float, spec: NavigationErrorSpec, sites: int = 1,
-            site_spacing_deg: float = SITE_SPACING_DEG, site_half_width_s: float | None = None) -> dict[str, Any]:
+            site_spacing_deg: float = SITE_SPACING_DEG, site_half_width_s: float | None = None,
+            layout: str = "block") -> dict[str, Any]:
     out = {"orbits": int(orbits), "site_latitude_deg": float(site_latitude_deg), "navigation": spec.to_dict()}
     if sites > 1:  # a one-site manifest stays as it was before sites existed
         out.update({"sites": int(sites), "site_spacing_deg": float(site_spacing_deg)})
         if site_half_width_s is not None:
             out["site_half_width_s"] = float(site_half_width_s)
+    if layout != "block":  # so does the default layout's
+        out["layout"] = layout
     return out
 
 
@@ -418,11 +443,11 @@ def _spec(navigation: NavigationErrorSpec | Mapping[str, Any] | None, sites: Any
     raise InvalidInputError(f"navigation must be a NavigationErrorSpec or a mapping, got {type(navigation).__name__}")
 
 
-def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits: int = 3,
+def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits: int | None = None,
                         site_latitude_deg: float = 57.0,
                         navigation: NavigationErrorSpec | Mapping[str, Any] | None = None, sites: int = 1,
                         site_spacing_deg: float = SITE_SPACING_DEG,
-                        site_half_width_s: float | None = None) -> BlockMission:
+                        site_half_width_s: float | None = None, layout: str = "block") -> BlockMission:
     """Write the imaging block: kernels (TRUTH and NAVIGATION sets), labels and manifest.
 
     Parameters
@@ -432,9 +457,9 @@ def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits
     seed : int
         Seed of every random choice; the same arguments give byte-identical
         text kernels, labels and manifest.
-    orbits : int
-        Consecutive orbits over the site (2 to 4; 3: convergence angles of
-        about 20 and 40 degrees between the orbits).
+    orbits : int, optional
+        Consecutive orbits over the site (2 to 4; default 3: convergence angles of
+        about 20 and 40 degrees between the orbits; 2 for the full-size layout: 20 degrees).
     site_latitude_deg : float
         Site latitude (site 1), degrees.
     navigation : NavigationErrorSpec or mapping, optional
@@ -455,6 +480,10 @@ def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits
     site_half_width_s : float, optional
         Pass half-width of a block of several sites, seconds (see
         :func:`~lunarmap.synthetic.block.build_block_model`).
+    layout : str
+        ``"block"`` (default) or ``"full_size"``: eight full-size LRO-NAC-like images (NAC-L and
+        NAC-R, 52,224 x 5,064 pixels of ~0.5 m, two along-track strips per orbit) on 2 orbits by
+        default; see :func:`~lunarmap.synthetic.block.build_block_model`.
 
     Returns
     -------
@@ -468,8 +497,11 @@ def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits
         ``folder`` exists and is not a folder.
     """
     spec = _spec(navigation, sites)
+    if orbits is None:
+        orbits = FULL_SIZE_ORBITS if layout == "full_size" else 3
     model = build_block_model(seed, orbits=orbits, site_latitude_deg=site_latitude_deg, navigation=spec, sites=sites,
-                              site_spacing_deg=site_spacing_deg, site_half_width_s=site_half_width_s)
+                              site_spacing_deg=site_spacing_deg, site_half_width_s=site_half_width_s,
+                              layout=layout)
     dest = Path(folder).expanduser()
     if dest.exists() and not dest.is_dir():
         raise BlockMissionError(f"cannot write the block mission into {dest}: it exists and is not a folder")
@@ -480,12 +512,12 @@ def write_block_mission(folder: str | os.PathLike[str], seed: int = 0, *, orbits
         _write_kernels(model, staging)
         images = _image_records(model, staging)
         manifest = _manifest(model, images, _params(orbits, site_latitude_deg, spec, model.n_sites,
-                                                    site_spacing_deg, site_half_width_s))
+                                                    site_spacing_deg, site_half_width_s, model.layout))
         atomic_write(staging / BLOCK_MANIFEST_NAME, lambda tmp: tmp.write_text(
             json.dumps(manifest, indent=1) + "\n", encoding="ascii"))
-        (staging / TRUTH_METAKERNEL).write_text(_metakernel_text("truth"), encoding="ascii")
-        (staging / NAVIGATION_METAKERNEL).write_text(_metakernel_text("navigation"), encoding="ascii")
-        names = [*SHARED_KERNELS, *TRUTH_KERNELS, *NAVIGATION_KERNELS, *(f"{n}.lbl" for n in model.image_names),
+        (staging / TRUTH_METAKERNEL).write_text(_metakernel_text("truth", model.layout), encoding="ascii")
+        (staging / NAVIGATION_METAKERNEL).write_text(_metakernel_text("navigation", model.layout), encoding="ascii")
+        names = [*shared_kernels(model.layout), *TRUTH_KERNELS, *NAVIGATION_KERNELS, *(f"{n}.lbl" for n in model.image_names),
                  BLOCK_MANIFEST_NAME, TRUTH_METAKERNEL, NAVIGATION_METAKERNEL]
         for name in names:
             os.replace(staging / name, dest / name)
@@ -524,7 +556,8 @@ def open_block_mission(folder: str | os.PathLike[str] | BlockMission) -> BlockMi
                                   site_latitude_deg=float(p["site_latitude_deg"]),
                                   navigation=_spec(p["navigation"]), sites=int(p.get("sites", 1)),
                                   site_spacing_deg=float(p.get("site_spacing_deg", SITE_SPACING_DEG)),
-                                  site_half_width_s=p.get("site_half_width_s"))
+                                  site_half_width_s=p.get("site_half_width_s"),
+                                  layout=str(p.get("layout", "block")))
     except (ValueError, KeyError, TypeError) as exc:
         raise BlockMissionError(f"{path} is not a valid block-mission manifest ({exc!r})") from None
     # the kernels were written from this model: a different lunarmap version must not reinterpret them
@@ -534,7 +567,7 @@ def open_block_mission(folder: str | os.PathLike[str] | BlockMission) -> BlockMi
             or abs(man["site"]["longitude_deg"] - model.site_longitude_deg) > 1e-9:
         raise BlockMissionError(f"{path}: the model rebuilt from the manifest's seed and parameters does not "
                                 f"match its images, orbits or site (written by another lunarmap version?)")
-    for name in [*SHARED_KERNELS, *TRUTH_KERNELS, *NAVIGATION_KERNELS, TRUTH_METAKERNEL, NAVIGATION_METAKERNEL,
+    for name in [*shared_kernels(model.layout), *TRUTH_KERNELS, *NAVIGATION_KERNELS, TRUTH_METAKERNEL, NAVIGATION_METAKERNEL,
                  *(im["label"] for im in man["images"].values())]:
         if not (d / name).is_file():
             raise BlockMissionError(f"block mission {d} is incomplete: {name} is missing")

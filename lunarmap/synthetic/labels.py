@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-__all__ = ["isis_label"]
+from typing import Any
+
+__all__ = ["isis_label", "isis_label_groups"]
 
 
 def isis_label(*, samples: int, lines: int, spacecraft_name: str, instrument_id: str,
@@ -68,3 +70,24 @@ def isis_label(*, samples: int, lines: int, spacecraft_name: str, instrument_id:
         "End",
     ]
     return "\n".join(out) + "\n"
+
+
+def isis_label_groups(*, spacecraft_name: str, instrument_id: str, start_time: str, stop_time: str,
+                      sclk_start: str, naif_frame_code: int, line_time_ms: float | None = None,
+                      exposure_ms: float | None = None) -> list[Any]:
+    """The ``Instrument`` and ``Kernels`` groups of :func:`isis_label` as PVL items, for a cube's label.
+
+    See :func:`isis_label` for the parameters; the items go to :func:`lunarmap.io.write_cube` or
+    :class:`lunarmap.io.CubeWriter` (``groups=``), so that a rendered cube carries its own camera keywords.
+    """
+    from ..io.pvl_write import Unit
+
+    if (line_time_ms is None) == (exposure_ms is None):
+        raise ValueError("give exactly one of line_time_ms (line-scan) and exposure_ms (frame)")
+    inst: list[Any] = [("SpacecraftName", spacecraft_name), ("InstrumentId", instrument_id), ("TargetName", "MOON"),
+                       ("StartTime", start_time), ("StopTime", stop_time), ("SpacecraftClockStartCount", sclk_start)]
+    if line_time_ms is not None:
+        inst.append(("LineExposureDuration", Unit(float(line_time_ms), "ms")))
+    else:
+        inst.append(("ExposureDuration", Unit(float(exposure_ms), "ms")))
+    return [("Group", "Instrument", inst), ("Group", "Kernels", [("NaifFrameCode", int(naif_frame_code))])]
