@@ -242,3 +242,24 @@ def test_sigma0_is_nan_without_redundancy(block, monkeypatch):
     assert res.redundancy > 0 and np.isfinite(res.sigma0)
     monkeypatch.setattr(type(res), "redundancy", property(lambda self: 0))
     assert np.isnan(res.sigma0)
+
+
+def test_datum_test_tells_a_weakly_determined_direction_from_a_missing_one():
+    """Full-size narrow-angle images that only navigation places along the line of sight give a scaled
+    eigenvalue ratio of ~4e-11 (8 LRO-NAC-like images); a missing datum gives rounding-level ratios."""
+    import scipy.sparse as sp
+
+    from lunarmap.adjust import DatumDefectError
+    from lunarmap.adjust.solver import _check_datum
+
+    rng = np.random.default_rng(0)
+    q, _ = np.linalg.qr(rng.normal(size=(40, 40)))
+    for ratio, defect in ((4e-11, False), (1e-15, True)):
+        ev = np.geomspace(1.0, 1.0 / 5e3, 40)
+        ev[0] = ratio * ev.max() * 0.999
+        S = sp.csr_matrix((q * ev) @ q.T)
+        if defect:
+            with pytest.raises(DatumDefectError, match="datum"):
+                _check_datum(S, "auto")
+        else:
+            _check_datum(S, "auto")
