@@ -115,7 +115,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         logging.getLogger("lunarmap").removeHandler(handler)
     s = result.summary
     print(f"run folder {result.folder}: sigma0 {s['sigma0']:.4f}, {s['n_points']} points, "
-          f"{s['n_observations']} observations; adjusted kernels {result.outputs['metakernel']}")
+          f"{s['n_observations']} observations; adjusted kernels "
+          f"{result.outputs.get('metakernel', result.outputs['kernels'])}")
     if "check_rms_after_m" in s:
         print("check points RMS along/cross/height (m): before "
               + " ".join(f"{v:.3f}" for v in s["check_rms_before_m"]) + ", after "

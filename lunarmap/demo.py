@@ -28,6 +28,7 @@ match, and the camera position errors of the navigation and of the adjustment.
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import time
@@ -149,9 +150,10 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
     truth = block_cameras(bm, "truth")
 
     # the adjusted kernels, reloaded from the unchanged labels through the layered meta-kernel
+    kernels_of = json.loads(result.outputs["kernels"].read_text())
     d_pos, d_px = 0.0, 0.0
     for n in names:
-        again = lunarmap.load_camera(bm.label(n), result.outputs["metakernel"])
+        again = lunarmap.load_camera(bm.label(n), result.outputs["kernels"].parent / kernels_of[n])
         L, S = _grid(again)
         X = adjusted[n].image_to_ground(L, S, height=0.0)
         la, sa = again.ground_to_image(X, within_image=False)
@@ -183,7 +185,8 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
         camera_error_after=float(np.sqrt(np.mean(np.sum((p_adj - p_true) ** 2, axis=1)))),
         camera_normalized_rms=float(np.sqrt(np.mean(z ** 2))), reload_position_mm=1e3 * d_pos, reload_px=d_px,
         rpc_check_rms_px=rpc_rms, rpc_adjusted_check_rms_px=rpc_adj_rms, quality_control=qc_text(s), seconds=seconds,
-        files={"metakernel": result.outputs["metakernel"], "tiepoints": result.outputs["tiepoints"],
+        files={"metakernel": result.outputs.get("metakernel", result.outputs["kernels"]),
+               "tiepoints": result.outputs["tiepoints"],
                "report": result.report or Path(), "config": config, "navigation": bm.navigation_metakernel,
                "truth": bm.truth_metakernel})
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 import re
 from pathlib import Path
 
@@ -370,6 +371,35 @@ def test_conflicting_overlaps_are_refused(sim, sim_mission, tmp_path):
     with pytest.raises(OrientationConflictError, match="CK frame -990000"):
         write_orientation_kernels([one, updated_image_support(frame, turned)], tmp_path, sim_mission)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_run_writes_simultaneous_images_adjusted_apart_into_separate_kernel_sets(sim, sim_mission, tmp_path):
+    """LRO NAC-L and NAC-R adjusted apart: one spacecraft cannot have two trajectories in one SPK, so the run's
+    kernels step writes one set per group of images that do not overlap in time, each reproducing its images."""
+    from lunarmap.workflows.steps import Done, kernel_sets, kernels_step
+    from lunarmap.workflows.store import Store
+
+    labels, isds = sim
+    frame = isds["sim_frame_a"]
+    eo = frame.exterior_orientation()
+    eos = {"left": perturbed(eo, 1), "right": perturbed(eo, 2),
+           "later": perturbed(isds["sim_frame_b"].exterior_orientation(), 1)}
+    adjusted = {"left": updated_image_support(frame, eos["left"]), "right": updated_image_support(frame, eos["right"]),
+                "later": updated_image_support(isds["sim_frame_b"], eos["later"])}
+    folder = tmp_path / "adjustment"
+    folder.mkdir()
+    for n, isd in adjusted.items():
+        isd.write_json(folder / f"{n}.adjusted.json")
+    names = list(adjusted)
+    sets = kernel_sets([adjusted[n] for n in names])
+    assert not any(0 in g and 1 in g for g in sets)                  # the simultaneous images apart
+    d = kernels_step(Store(tmp_path / "store"), "k", names, Done("adjust", "a", "", str(folder), True), [],
+                     str(sim_mission))
+    index = json.loads(Path(d.path).read_text())
+    assert index["left"] != index["right"] and len(set(index.values())) == 2
+    for n in names:
+        label = labels["sim_frame_a" if n != "later" else "sim_frame_b"]
+        assert_reproduced(compare(image_support(label, Path(d.path).parent / index[n]), adjusted[n], eos[n]))
 
 
 def test_bad_input_is_refused_by_name(sim, sim_mission, tmp_path):

@@ -252,7 +252,7 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
                out=[store.path("adjust", k_adj)])
     k_ker = step_key("kernels", None, [k_adj, kernels_digest])
     node("kernels", k_ker, kernels_step, store, k_ker, names, adj, [rec[n]["isd"] for n in names],
-         str(cfg.metakernel), out=[store.path("kernels", k_ker) / "adjusted.tm"])
+         str(cfg.metakernel), out=[store.path("kernels", k_ker) / "kernels.json"])
     if cfg.rpc_enabled:
         rjobs = [(step_key("rpc_adjusted", [list(cfg.rpc_height_range), n], [k_adj]), n) for n in names]
         per = max(1, -(-len(rjobs) // 16))
@@ -380,7 +380,15 @@ def _export(cfg: RunConfig, graph: _Graph, records: list[Done]) -> tuple[dict[st
 
     files["tiepoints"] = copy(by_stage["tiepoints"][0].path, out / "tiepoints.nc")
     files["adjustment"] = copy(by_stage["adjust"][0].path, out / "adjustment")
-    files["metakernel"] = copy(by_stage["kernels"][0].path, out / "adjusted.tm")
+    # each image's adjusted meta-kernel (one for all, or one per set of images that do not overlap in time)
+    kfolder = Path(by_stage["kernels"][0].path).parent
+    index = json.loads(Path(by_stage["kernels"][0].path).read_text())
+    files["kernels"] = copy(by_stage["kernels"][0].path, out / "kernels.json")
+    files["metakernels"] = out / "kernels.json"
+    for mk in sorted(set(index.values())):
+        files[mk[:-3]] = copy(kfolder / mk, out / mk)
+    if set(index.values()) == {"adjusted.tm"}:
+        files["metakernel"] = out / "adjusted.tm"
     for stage in ("rpc", "rpc_adjusted"):      # the navigation cameras' RFMs and the adjusted cameras'
         if stage in by_stage:
             from ..rpc import read_netcdf, write_rpc_txt

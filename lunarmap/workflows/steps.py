@@ -26,7 +26,7 @@ from .store import Store
 
 __all__ = ["Done", "ImageJob", "ImageDone", "MatchJob", "image_steps", "isd_step", "rpc_step", "pyramid_step",
            "detect_step", "footprint_step", "match_batch", "match_step", "tiepoints_step", "adjust_step",
-           "kernels_step", "adjusted_rpc_batch", "read_pixels", "provenance"]
+           "kernels_step", "kernel_sets", "adjusted_rpc_batch", "read_pixels", "provenance"]
 
 
 @dataclass(frozen=True)
@@ -686,24 +686,68 @@ def _qc_summary(qc_out: Any, block: Any, names: Sequence[str]) -> dict[str, Any]
     return out
 
 
+def kernel_sets(isds: Sequence[Any]) -> list[list[int]]:
+    """Indices of images grouped so that no two images of one platform in a group overlap in time.
+
+    One SPK holds one trajectory per spacecraft and one CK one attitude per frame: images taken at the
+    same time by one spacecraft (LRO NAC-L and NAC-R) whose adjusted orientations differ cannot share
+    a kernel set. Greedy in time order: each image joins the first set without a simultaneous image of
+    its platform, so images that follow each other stay together.
+    """
+    order = sorted(range(len(isds)), key=lambda i: (float(np.min(isds[i].times)), i))
+    sets: list[list[int]] = []
+    for i in order:
+        a0, a1 = float(np.min(isds[i].times)), float(np.max(isds[i].times))
+        for group in sets:
+            if all(isds[j].name_platform != isds[i].name_platform or float(np.max(isds[j].times)) < a0
+                   or float(np.min(isds[j].times)) > a1 for j in group):
+                group.append(i)
+                break
+        else:
+            sets.append([i])
+    return [sorted(g) for g in sets]
+
+
 @_one_blas_thread
 def kernels_step(store: Store, key: str, names: Sequence[str], adjusted: Done, isds: Sequence[Done],
                  metakernel: str) -> Done:
-    """The adjusted orientation as SPK + CK + a meta-kernel layered over the run's kernels."""
+    """The adjusted orientation as SPK + CK + a meta-kernel layered over the run's kernels.
+
+    ``kernels.json`` names each image's meta-kernel: ``adjusted.tm`` for all, or, when simultaneous images of
+    one spacecraft were adjusted apart (their trajectories or attitudes then disagree), one set per group
+    of :func:`kernel_sets` (``adjusted_1.tm``, ``adjusted_2.tm``, ...; a warning says so).
+    """
     t = time.perf_counter()
     folder = store.path("kernels", key)
-    if (folder / "adjusted.tm").exists():
-        return Done("kernels", key, "", str(folder / "adjusted.tm"), False)
+    if (folder / "kernels.json").exists():
+        return Done("kernels", key, "", str(folder / "kernels.json"), False)
+    from ..errors import OrientationConflictError
     from ..orientation.isd import ImageSupport
     from ..orientation.kernels import write_orientation_kernels
 
     folder.mkdir(parents=True, exist_ok=True)
     isd_list = [ImageSupport.read_json(Path(adjusted.path) / f"{n}.adjusted.json") for n in names]
     try:
-        mk = write_orientation_kernels(isd_list, folder, metakernel, name="adjusted")
+        try:
+            mk = write_orientation_kernels(isd_list, folder, metakernel, name="adjusted")
+            index = {n: mk.name for n in names}
+        except OrientationConflictError as err:
+            import logging
+
+            sets = kernel_sets(isd_list)
+            logging.getLogger(__name__).warning("adjusted kernels in %d sets, one per group of images that do not "
+                                                "overlap in time: %s", len(sets), err)
+            index = {}
+            for k, group in enumerate(sets, start=1):
+                mk = write_orientation_kernels([isd_list[i] for i in group], folder, metakernel, name=f"adjusted_{k}")
+                index.update({names[i]: mk.name for i in group})
     except LunarmapError as err:
         raise _fail("kernels", "", err) from None
-    return Done("kernels", key, "", str(mk), True, time.perf_counter() - t)
+    from ..atomic import atomic_write
+
+    path = atomic_write(folder / "kernels.json", lambda tmp: tmp.write_text(json.dumps(index, indent=1)))
+    return Done("kernels", key, "", str(path), True, time.perf_counter() - t,
+                note=f"{len(set(index.values()))} kernel set(s)")
 
 
 def as_dict(done: Done) -> dict[str, Any]:
