@@ -28,7 +28,12 @@ except ImportError:  # pragma: no cover - exercised only without numba
 __all__ = ["NccResult", "ncc_match", "window_offsets"]
 
 Array = NDArray[np.float64]
-_BATCH = 512  # matches per vectorised block (memory ~ batch * (2r+1)^2 * t^2 * 8 bytes)
+_BATCH = 512  # matches per vectorised block
+#: Most search-window pixels per vectorised block: about ten float64 arrays of this many elements live at
+#: once (the windows, their validity, three integral images, the correlations), so a block stays near
+#: 300 MB however wide the search (a 256-px search on level 0 is 527^2 pixels per point: 64 points would
+#: need 1.4 GB in one block).
+_BATCH_PIXELS = 1 << 22
 
 
 def window_offsets(half: int) -> tuple[Array, Array]:
@@ -193,8 +198,9 @@ def ncc_match(pyr1: list[Array], pyr2: list[Array], line1: Array, sample1: Array
         for r in np.unique(radius[alive]):
             sel = np.flatnonzero(alive & (radius == r))
             ol, os_ = window_offsets(half + int(r))
-            for b0 in range(0, sel.size, _BATCH):
-                act = sel[b0:b0 + _BATCH]
+            batch = max(1, min(_BATCH, _BATCH_PIXELS // ol.size))
+            for b0 in range(0, sel.size, batch):
+                act = sel[b0:b0 + batch]
                 a = affine[act]
                 t = bilinear(pyr1[level], line1[act, None, None] / f + tl, sample1[act, None, None] / f + ts)
                 # image-2 positions of the search window, laid out in image-1 geometry
