@@ -18,6 +18,7 @@ import numpy as np
 import xarray as xr
 from numpy.typing import ArrayLike, NDArray
 
+from ..camera.intersect import DtmSampler
 from ..camera.sensor import SensorModel
 from ..errors import InvalidInputError
 
@@ -67,9 +68,10 @@ def predict_conjugates(sensor1: SensorModel, sensor2: SensorModel, line: ArrayLi
         Models of images 1 and 2 (cameras or RPCs).
     line, sample : array_like (n,)
         Image-1 coordinates, pixels (CSM).
-    height : float, array_like (n,) or xarray.DataArray
+    height : float, array_like (n,), xarray.DataArray or DtmSampler
         Height above the reference (metres) at which to predict, or a (coarse)
-        DTM on ``lat`` x ``lon`` to intersect image-1 rays with (only for
+        DTM on ``lat`` x ``lon`` (or its sampler, which several pairs can share
+        without a copy each) to intersect image-1 rays with (only for
         sensors whose ``image_to_ground`` accepts ``dtm=``).
     step : float
         Finite-difference step for the affine map, image-1 pixels.
@@ -88,7 +90,7 @@ def predict_conjugates(sensor1: SensorModel, sensor2: SensorModel, line: ArrayLi
     if line.shape != sample.shape or line.ndim != 1:
         raise InvalidInputError("line and sample must be 1-D arrays of equal length")
     n = line.size
-    dtm = height if isinstance(height, xr.DataArray) else None
+    dtm = height if isinstance(height, (xr.DataArray, DtmSampler)) else None
     if dtm is not None:
         g0 = _ground(sensor1, line, sample, None, dtm)
         if radius is None:

@@ -31,6 +31,7 @@ import xarray as xr
 from numpy.typing import NDArray
 
 from ..atomic import atomic_write
+from ..camera.intersect import DtmSampler
 from ..errors import InvalidInputError, TiePointFormatError
 from ..ncread import load_netcdf
 from .interest import InterestPoints, foerstner
@@ -109,6 +110,19 @@ def merge_points(parts: Sequence[InterestPoints]) -> InterestPoints:
     return InterestPoints(*(np.concatenate([p[k] for p in parts]) for k in range(3)))
 
 
+def _typical_height(height: Any) -> float:
+    """The median prediction height (metres) of one height, per-point heights or a DTM.
+
+    A DTM's median is taken on every 4th node in each direction: ``np.nanmedian`` copies its input, and a
+    full-size example's DTM is 177 MB (the thinning only needs a typical height).
+    """
+    if isinstance(height, DtmSampler):
+        return float(np.nanmedian(height.z[::4, ::4]))
+    if isinstance(height, xr.DataArray):
+        return float(np.nanmedian(np.asarray(height.values)[..., ::4, ::4]))
+    return float(np.nanmedian(np.asarray(height, dtype=float)))
+
+
 def match_pair(image1: NDArray, image2: NDArray, sensor1: Any, sensor2: Any, points: InterestPoints,
                height: Any, params: TiePointParams, label: str) -> PairMatches:
     """Match one image pair and screen the matches with RANSAC (outliers get status ``outlier``).
@@ -120,7 +134,7 @@ def match_pair(image1: NDArray, image2: NDArray, sensor1: Any, sensor2: Any, poi
     n = points.line.size
     keep = None
     if params.max_points is not None and n > params.max_points:
-        h = float(np.nanmedian(np.asarray(height)))
+        h = _typical_height(height)
         keep = thin_points(points.line, points.sample, points.strength, params.max_points, sensor1, sensor2,
                            tuple(image1.shape), tuple(image2.shape), h, cell=float(params.detect.cell))
     if keep is None:
@@ -128,7 +142,7 @@ def match_pair(image1: NDArray, image2: NDArray, sensor1: Any, sensor2: Any, poi
                          params=params.match, label=label)
     else:
         # per-point heights follow their points; a DTM or one height serves all
-        h_keep = height if isinstance(height, xr.DataArray) or np.ndim(height) == 0 else np.asarray(height)[keep]
+        h_keep = height if isinstance(height, (xr.DataArray, DtmSampler)) or np.ndim(height) == 0 else np.asarray(height)[keep]
         m = _expand(match_points(image1, image2, sensor1, sensor2, points.line[keep], points.sample[keep],
                                  height=h_keep, params=params.match, label=label), keep, n, points)
     ok = m.ok

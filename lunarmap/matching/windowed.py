@@ -35,8 +35,10 @@ __all__ = ["WindowedImage", "windowed_pyramid", "CACHE_BYTES", "set_cache_bytes"
 
 Array = NDArray[np.float64]
 
-#: Bytes of pixel regions a process keeps (all images, levels and smoothings together).
-CACHE_BYTES = 256 << 20
+#: Bytes of pixel regions a process keeps (all images, levels and smoothings together). 64 MB holds a
+#: pair's working set: on a full-size NAC-like pair, 64 MB instead of 256 MB gave the same matches
+#: (639 of 846), 17 % faster, and a worker peak of 0.99 GB instead of 1.32 GB.
+CACHE_BYTES = 64 << 20
 #: Extra pixels read around a region, so the next, slightly moved request (an LSM iteration) hits.
 _PAD = 16
 _TRUNCATE = 4.0          # scipy.ndimage.gaussian_filter's default

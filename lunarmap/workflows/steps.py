@@ -126,6 +126,29 @@ def _read_pixels(path: str, size: int, mtime: int) -> xr.DataArray:
     return da
 
 
+def _dtm_sampler(path: str | Path) -> tuple[Any, float]:
+    """The run's DTM as one height sampler per process, and its mean height (metres).
+
+    The matcher's cameras would each copy a DataArray into a sampler of their own (a full-size example's
+    DTM is 177 MB: with the DataArray, three copies per pair); one shared sampler is one copy, and the
+    DataArray is not kept.
+    """
+    return _dtm_sampler_cached(*_stamp(path))
+
+
+@functools.lru_cache(maxsize=1)
+def _dtm_sampler_cached(path: str, size: int, mtime: int) -> tuple[Any, float]:
+    from ..camera.intersect import DtmSampler
+
+    da = _read_pixels.__wrapped__(path, size, mtime)
+    try:
+        sampler = DtmSampler(da)
+    except LunarmapError as err:
+        raise WorkflowError(f"DTM {path}: {err}") from None
+    del da
+    return sampler, float(np.nanmean(sampler.z))
+
+
 # -- per image -------------------------------------------------------------------------------
 
 @_one_blas_thread
@@ -461,9 +484,9 @@ def match_step(store: Store, key: str, pair: tuple[str, str], pixels: tuple[str,
 
     cam_a, cam_b = _camera(isds[0]), _camera(isds[1])
     height: Any = 0.0
+    mean_h = 0.0
     if dtm is not None:
-        height = read_pixels(dtm)
-    mean_h = float(np.nanmean(height.values)) if isinstance(height, xr.DataArray) else float(height)
+        height, mean_h = _dtm_sampler(dtm)
     frac = _overlap(cam_a, cam_b, mean_h)
     if frac < min_overlap:
         note = f"skipped: {frac:.0%} of {pair[0]} is seen by {pair[1]} (< {min_overlap:.0%})"
