@@ -391,11 +391,34 @@ def check_input(target: Target, seed: Seed, data: bytes, folder: Path) -> str:
     return outcome
 
 
+_WARM: set[str] = set()
+
+
+def warm_up(target: Target, folder: Path) -> None:
+    """Read every seed once before the timed inputs: imports and numba's compilation (tens of seconds on a
+    loaded machine the first time) are not an input's time."""
+    if target.name in _WARM:
+        return
+    _WARM.add(target.name)
+    for k, seed in enumerate(target.seeds):
+        path = folder / f"warm{k}{seed.suffix}"
+        path.write_bytes(seed.data)
+        if target.prepare is not None:
+            target.prepare(seed)
+        try:
+            target.call(path, seed)
+        except Exception:  # noqa: BLE001 - a seed's own outcome is the fuzzing's business, not the warm-up's
+            pass
+        finally:
+            path.unlink()
+
+
 def fuzz(target: Target, max_examples: int, derandomize: bool = True, seed: int | None = None) -> None:
     """Run ``max_examples`` generated inputs through ``target`` (raises on the first breach, shrunk)."""
     scratch = Path(tempfile.mkdtemp(prefix=f"fuzz_{target.name}_"))
     work = scratch / "work"
     work.mkdir()
+    warm_up(target, scratch)
     try:
         @settings(max_examples=max_examples, deadline=None, database=None, derandomize=derandomize,
                   suppress_health_check=list(HealthCheck), print_blob=False,

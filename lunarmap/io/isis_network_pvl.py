@@ -54,7 +54,11 @@ def read_pvl_network(path: str | os.PathLike[str], images: list[str] | None = No
     net = label.get("ControlNetwork")
     if not isinstance(net, Label):
         raise IsisNetworkFormatError(f"{path} is not an ISIS control network (no ControlNetwork object)")
-    version = int(_num(net.get("Version", 1), 1))
+    v = _num(net.get("Version", 1), np.nan)
+    if not (np.isfinite(v) and v.is_integer()):
+        raise IsisNetworkFormatError(f"ISIS PVL control network {path}: Version {net.get('Version')!r:.40} is not an "
+                                     "integer")
+    version = int(v)
     if version not in (3, 4, 5):
         raise IsisNetworkFormatError(f"ISIS PVL control network {path} is version {version}; lunarmap reads "
                                      "versions 3 to 5 (convert with ISIS cnetpvl2bin and cnetbin2pvl)")
