@@ -230,3 +230,38 @@ def test_empty_pixels_in_a_run_configuration(tmp_path):
                                            '[[images]]\nname = "b"\nlabel = "a.lbl"\npixels = "a.lbl"\n' % pixels)
         with pytest.raises(ConfigError, match=r"images\[0\]\.pixels|pixels"):
             load_config(tmp_path / "run.toml")
+
+
+def test_pvl_network_target_radii_not_numbers(isis_net, tmp_path):
+    from lunarmap.io.isis_network import read_isis_network
+    from lunarmap.io.isis_network_pvl import write_pvl_network
+
+    p = write_pvl_network(isis_net[2], tmp_path / "n.pvl")
+    text = p.read_text()
+    import re
+
+    m = re.search(r"TargetRadii\s*=\s*\(([^)]*)\)", text)
+    if m is None:
+        pytest.skip("the written network has no TargetRadii")
+    bad = tmp_path / "bad.pvl"
+    bad.write_text(text.replace(m.group(1), "\x881737400.0, 1737400.0, 1737400.0", 1))   # found by fuzzing
+    with pytest.raises(IsisNetworkFormatError, match="TargetRadii"):                        # was ValueError
+        read_isis_network(bad)
+
+
+def test_lro_summing_that_overflows(lro_set, tmp_path):
+    from lunarmap.orientation.drivers import image_support
+    from lunarmap.spice import KernelSet
+
+    lab = next(lro_set.glob("*_pds3.lbl"), None) or next(lro_set.glob("*.lbl"))
+    text = lab.read_text()
+    import re
+
+    new, n = re.subn(r"(CROSSTRACK_SUMMING\s*=\s*)\S+", r"\g<1>1e999", text, count=1)
+    if not n:
+        new, n = re.subn(r"(SpatialSumming\s*=\s*)\S+", r"\g<1>1e999", text, count=1)
+    assert n
+    bad = tmp_path / lab.name
+    bad.write_text(new)
+    with pytest.raises(LabelError, match="summing"):                                        # was OverflowError
+        image_support(bad, KernelSet.from_metakernel(next(lro_set.glob("*.tm"))))

@@ -155,8 +155,12 @@ def read_pvl_network(path: str | os.PathLike[str], images: list[str] | None = No
              "isis_description": str(net.get("Description", "")), "isis_user_name": str(net.get("UserName", "")),
              "isis_version": version, "source": str(path)}
     if isinstance(radii, list) and radii:
-        attrs["isis_target_radii"] = np.asarray([float(r) for r in radii])
-        attrs["radius"] = float(radii[0])
+        values = np.asarray([_num(r) for r in radii], float)
+        if not np.all(np.isfinite(values) & (values > 0)):
+            raise IsisNetworkFormatError(f"ISIS PVL control network {path}: TargetRadii {radii!r:.80} are not "
+                                         "positive numbers")
+        attrs["isis_target_radii"] = values
+        attrs["radius"] = float(values[0])
     n = len(logs["measure"])
     mlogs = {"measure": logs["measure"], "type": logs["type"], "value": logs["value"], "bool_type": [-1] * n,
              "bool_value": [-1] * n}
