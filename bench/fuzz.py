@@ -32,7 +32,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--readers", nargs="*", default=sorted(READERS), choices=sorted(READERS))
     ap.add_argument("--seed", type=int, default=None, help="random seed (default: a fresh one, printed)")
     ap.add_argument("--collect", action="store_true", help="collect every distinct breach, do not stop")
+    ap.add_argument("--deadline", default=None,
+                    help="UTC time HH:MM after which no reader starts another chunk of inputs (the figures "
+                         "then say how many inputs each reader actually ran)")
+    ap.add_argument("--chunk", type=int, default=1000, help="inputs per hypothesis run (default 1,000)")
     args = ap.parse_args(argv)
+    deadline = None
+    if args.deadline:
+        import datetime as _dt
+
+        hh, mm = (int(v) for v in args.deadline.split(":"))
+        now = _dt.datetime.now(_dt.timezone.utc)
+        deadline = now.replace(hour=hh, minute=mm, second=0, microsecond=0).timestamp()
     seed = args.seed if args.seed is not None else int.from_bytes(os.urandom(4), "little")
     print(f"seed {seed}, budget {args.budget} inputs per reader, load average {os.getloadavg()[0]:.2f}", flush=True)
     if args.collect:
@@ -49,8 +60,21 @@ def main(argv: list[str] | None = None) -> int:
             per = -(-args.budget // len(mine))
             t0 = time.perf_counter()
             try:
-                for k, target in enumerate(mine):
-                    fuzzhelp.fuzz(target, max_examples=per, derandomize=False, seed=seed + k)
+                # in chunks of fresh draws (a new seed each), so that a deadline can end a reader between them
+                done = {t.name: 0 for t in mine}
+                k = 0
+                while any(done[t.name] < per for t in mine):
+                    if deadline is not None and time.time() > deadline:
+                        print(f"{reader:14s} deadline reached", flush=True)
+                        break
+                    for j, target in enumerate(mine):
+                        if done[target.name] >= per:
+                            continue
+                        n_chunk = min(args.chunk, per - done[target.name])
+                        fuzzhelp.fuzz(target, max_examples=n_chunk, derandomize=False,
+                                      seed=seed + 1000 * k + j)
+                        done[target.name] += n_chunk
+                    k += 1
             except AssertionError as err:
                 failed = True
                 print(f"{reader:14s} BREACH: {str(err).splitlines()[0]}", flush=True)
@@ -58,9 +82,17 @@ def main(argv: list[str] | None = None) -> int:
             n = sum(counts.values())
             total_inputs += n
             outcomes = ", ".join(f"{k} {v}" for k, v in counts.most_common())
+            slow = max((fuzzhelp.SLOWEST[t.name] for t in mine if t.name in fuzzhelp.SLOWEST), default=(0.0, "", 0))
+            grow = max((fuzzhelp.PEAK_GROWTH[t.name] for t in mine if t.name in fuzzhelp.PEAK_GROWTH),
+                       default=(0.0, "", 0))
+            over = sum(fuzzhelp.OVER_TIME[t.name] for t in mine)
             print(f"{reader:14s} {n:7d} inputs in {time.perf_counter() - t0:7.1f} s: {outcomes}", flush=True)
+            print(f"{'':14s} slowest {slow[0]:.2f} s ({slow[2]} bytes from {slow[1]}), {over} over "
+                  f"{fuzzhelp.TIME_BUDGET:g} s; largest peak growth {grow[0]:.1f} MB ({grow[2]} bytes from {grow[1]})",
+                  flush=True)
         print(f"total {total_inputs} inputs in {time.perf_counter() - t_all:.0f} s, "
-              f"load average {os.getloadavg()[0]:.2f}")
+              f"load average {os.getloadavg()[0]:.2f}, peak RSS of the process "
+              f"{fuzzhelp.PEAK_RSS_KB[0] / 1024:.0f} MB")
         if fuzzhelp.COLLECT:
             failed = True
             print("\nbreaches:")

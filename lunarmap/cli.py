@@ -3,9 +3,12 @@
 ``lunarmap isd LABEL --kernels META_KERNEL [-o FILE] [--csm]``
     write the CSM image support data (ALE ISD layout) of one image; ``--csm``: with a distortion model
     usgscsm applies (a fitted transverse polynomial for the Apollo metric and Lunar Orbiter cameras).
-``lunarmap run CONFIG [--scheduler ADDRESS] [--workers N] [--serial]``
+``lunarmap run CONFIG [--scheduler ADDRESS] [--workers N] [--serial] [--wait | --force] [--check]``
     the whole chain of a run configuration (TOML, see :mod:`lunarmap.workflows.config`) as one dask
-    graph: ISDs, RPCs, tie points, adjustment, adjusted kernels, report; resumable.
+    graph: ISDs, RPCs, tie points, adjustment, adjusted kernels, report; resumable. One run per folder
+    at a time (``run.lock``): a second one stops with a named error, or waits with ``--wait``;
+    ``--force`` takes the folder whatever its lock says. ``--check`` verifies every stored output
+    against its checksum without computing anything (exit status 1 when one is damaged).
 ``lunarmap run --example [--output DIR] [--seed N] [--quick] [--full-size]`` (= ``lunarmap demo``)
     writes the embedded example (a synthetic mission with rendered images and perturbed navigation;
     with ``--full-size`` eight LRO-NAC-like images of 52,224 x 5,064 pixels as ISIS cubes) and runs it;
@@ -108,9 +111,19 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise SystemExit("lunarmap run: a CONFIG (TOML) or --example is needed")
     from .workflows import run
 
+    if getattr(args, "check", False):
+        from .workflows.engine import check_run
+
+        n, problems = check_run(args.config)
+        for why in problems:
+            print(f"damaged: {why}")
+        print(f"{n} stored outputs checked, {len(problems)} damaged"
+              + (" (a run computes them again)" if problems else ""))
+        return 1 if problems else 0
     handler = _progress_to_stderr()
     try:
-        result = run(args.config, scheduler=_scheduler(args), workers=args.workers)
+        result = run(args.config, scheduler=_scheduler(args), workers=args.workers,
+                     wait=getattr(args, "wait", False), force=getattr(args, "force", False))
     finally:
         logging.getLogger("lunarmap").removeHandler(handler)
     s = result.summary
@@ -147,6 +160,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("config", nargs="?", help="run configuration (TOML)")
     r.add_argument("--example", action="store_true",
                    help="write the embedded example (synthetic mission, rendered images, run.toml) and run it")
+    r.add_argument("--check", action="store_true",
+                   help="verify the run folder's stored outputs against their checksums; compute nothing")
+    r.add_argument("--wait", action="store_true",
+                   help="when another run uses the folder, wait for it instead of stopping")
+    r.add_argument("--force", action="store_true",
+                   help="take the run folder whatever its lock says (a run known to be gone)")
     d = sub.add_parser("demo", help="the same as 'run --example'")
     for q in (r, d):
         q.add_argument("--scheduler", help="address of a running dask scheduler (default: a local cluster)")

@@ -401,3 +401,32 @@ class TiePointFormatError(InvalidInputError):
 
 
 __all__ += ["LabelKeywordError", "TiePointFormatError"]
+
+
+# -- reliability of runs (issue 28) ----------------------------------------------------------------
+
+class StoreDamageWarning(LunarmapWarning):
+    """A stored step output is damaged or unverifiable (checksum mismatch, missing, unreadable): it is
+    recomputed, never reused. The message names the file."""
+
+
+class DiskError(WorkflowError, OSError):
+    """Writing failed because of the disk; the message names the path and what was being written."""
+
+    def __str__(self) -> str:  # OSError would format (errno, strerror)
+        return str(self.args[0]) if self.args else ""
+
+
+class DiskFullError(DiskError):
+    """No space left (``ENOSPC``, ``EDQUOT``), or less free space than a run needs, found before any work."""
+
+
+class DiskWriteError(DiskError, PermissionError):
+    """A folder or file is not writable: read-only file system (``EROFS``), permission denied."""
+
+
+class RunLockedError(WorkflowError):
+    """Another run holds the run folder's lock (``<run>/run.lock``, named with its pid, host and start)."""
+
+
+__all__ += ["StoreDamageWarning", "DiskError", "DiskFullError", "DiskWriteError", "RunLockedError"]

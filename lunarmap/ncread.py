@@ -39,23 +39,58 @@ __all__ = ["load_netcdf", "PROBE_TIMEOUT"]
 PROBE_TIMEOUT = float(os.environ.get("LUNARMAP_NETCDF_PROBE_TIMEOUT", "5"))
 
 
+def memory_bound(nbytes: int) -> int:
+    """Bytes a reader may allocate beyond its base for a file of ``nbytes``: 10 x its size + 64 MB."""
+    return 10 * int(nbytes) + (64 << 20)
+
+
+def _address_space() -> int:
+    """This process's virtual address space in bytes (Linux; 0 elsewhere, which disables the limit)."""
+    try:
+        with open("/proc/self/statm") as fh:
+            return int(fh.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
 def _probe_fork(data: bytes, timeout: float) -> str:
-    """Open ``data`` with netCDF4 in a forked child: ``"ok"``, ``"hang"`` or ``"crash"``."""
+    """Open ``data`` with netCDF4 in a forked child: ``"ok"``, ``"hang"``, ``"crash"`` or ``"memory"``.
+
+    The child's address space is limited to its base + :func:`memory_bound` of the file and it also
+    reads the variable-length (string) variables, whose sizes are stored in the file: a damaged length
+    that asks for gigabytes fails there, quickly, instead of in the caller.
+    """
     import netCDF4
 
+    base = _address_space()
     pid = os.fork()
     if pid == 0:  # child: only the open, then leave without running the parent's exit handlers
+        code = 0
         try:
-            netCDF4.Dataset("probe", mode="r", memory=data).close()
+            if base:
+                import resource
+
+                limit = base + memory_bound(len(data))
+                resource.setrlimit(resource.RLIMIT_AS, (limit, resource.getrlimit(resource.RLIMIT_AS)[1]))
+            nc = netCDF4.Dataset("probe", mode="r", memory=data)
+            for v in nc.variables.values():
+                if v.dtype is str or getattr(v.datatype, "__class__", None).__name__ == "VLType":
+                    v.set_auto_mask(False)
+                    v[...]
+            nc.close()
+        except MemoryError:
+            code = 3
         except BaseException:  # noqa: BLE001 - an exception is the parent's to report, not a hang
             pass
-        os._exit(0)
+        os._exit(code)
     deadline = time.monotonic() + timeout
     pause = 0.0005
     while True:
         done, status = os.waitpid(pid, os.WNOHANG)
         if done:
-            return "ok" if os.WIFEXITED(status) else "crash"
+            if os.WIFEXITED(status):
+                return "memory" if os.WEXITSTATUS(status) == 3 else "ok"
+            return "crash"
         if time.monotonic() > deadline:
             os.kill(pid, signal.SIGKILL)
             os.waitpid(pid, 0)
@@ -111,14 +146,26 @@ def load_netcdf(path: str | os.PathLike[str], error: type[LunarmapError], what: 
     data = p.read_bytes()
     state = _probe(p, data)
     if state != "ok":
-        why = (f"the netCDF library did not finish opening it within {PROBE_TIMEOUT:g} s" if state == "hang"
-               else "the netCDF library crashed opening it")
+        why = {"hang": f"the netCDF library did not finish opening it within {PROBE_TIMEOUT:g} s",
+               "memory": f"reading it needs more than {memory_bound(len(data)) >> 20} MB (10 x its size + 64 MB): "
+                         "damaged sizes"}.get(state, "the netCDF library crashed opening it")
         raise error(f"{what} {p} is not a readable netCDF file: {why} (a damaged file)")
     try:
         nc = netCDF4.Dataset(str(p), mode="r", memory=data)
     except Exception as err:  # noqa: BLE001 - whatever the netCDF stack raises on a bad file, named here
         raise error(f"{what} {p} is not a readable netCDF file: {type(err).__name__}: {err}") from err
     try:
+        declared = 0
+        for v in nc.variables.values():
+            if isinstance(v.dtype, type) and v.dtype is str:
+                continue
+            n = 1
+            for d in v.shape:
+                n *= int(d)
+            declared += n * getattr(v.dtype, "itemsize", 8)
+        if declared > memory_bound(len(data)):
+            raise error(f"{what} {p} is not a readable netCDF file: its variables declare {declared} bytes, more "
+                        f"than 10 x the file's {len(data)} bytes + 64 MB (damaged dimensions)")
         with xr.open_dataset(xr.backends.NetCDF4DataStore(nc)) as ds:
             return ds.load()
     except LunarmapError:

@@ -37,6 +37,15 @@ READERS = {
     "image_support": ["image_support_synthetic", "image_support_lro", "image_support_kaguya",
                       "image_support_clementine", "image_support_other"],
     "image_list": ["image_list"],
+    # issue 28: the readers added since the first fuzzing
+    "isis_cube": ["isis_cube"],
+    "pds3_image": ["pds3_image"],
+    "geotiff": ["geotiff"],
+    "isis_network": ["isis_network_v5"],
+    "isis_network_v2": ["isis_network_v2"],
+    "isis_network_pvl": ["isis_network_pvl"],
+    "cube_camera": ["cube_camera_lro"],
+    "run_config": ["run_config"],
 }
 
 
@@ -267,6 +276,95 @@ def call_image_list(path: Path, seed: Seed) -> None:
     assert all(len(pair) == 2 for pair in read_image_list(path))
 
 
+def _pixels_used(da) -> None:
+    """Compute the pixels (every chunk: a damaged one fails here) and read a window through PixelSource."""
+    # computed in this thread: with dask's thread pool, chunks still being read when another chunk's error
+    # is raised would hold the file open past the call (counted as a leaked descriptor)
+    values = da.data.compute(scheduler="sync")
+    assert values.ndim == 3
+
+
+def call_isis_cube(path: Path, seed: Seed) -> None:
+    from lunarmap.io import IsisCube
+    from lunarmap.io.window import PixelSource
+
+    cube = IsisCube(path)
+    _pixels_used(cube.pixels())
+    src = PixelSource(path)
+    src.read(0, min(3, src.shape[0]), 0, min(3, src.shape[1]))
+
+
+def call_image(path: Path, seed: Seed) -> None:
+    from lunarmap.io.raster import open_image
+    from lunarmap.io.window import PixelSource
+
+    _pixels_used(open_image(path, chunks=(8, 8)))
+    src = PixelSource(path)
+    src.read(0, min(3, src.shape[0]), 0, min(3, src.shape[1]))
+
+
+def call_isis_network(path: Path, seed: Seed) -> None:
+    from lunarmap.adjust.isis import read_isis_network
+
+    net = read_isis_network(path)
+    net.observations()
+
+
+def call_cube_camera(path: Path, seed: Seed) -> None:
+    from lunarmap.camera.cube import camera_from_cube
+
+    _use_camera(camera_from_cube(path, image_size=seed.context.get("image_size")))
+
+
+def call_run_config(path: Path, seed: Seed) -> None:
+    from lunarmap.workflows.config import load_config
+
+    cfg = load_config(path)
+    cfg.digest()
+    assert all(im.pixels.is_file() and im.label.is_file() for im in cfg.images)
+
+
+def _pds3_bytes(lines: int = 20, samples: int = 16) -> bytes:
+    data = (np.arange(lines * samples) % 700 - 50).astype(">i2").reshape(lines, samples)
+    data[3, 4] = -32768
+    prefix, record = 4, 4 + samples * 2 + 2
+    label = ("PDS_VERSION_ID = PDS3\r\nRECORD_TYPE = FIXED_LENGTH\r\nRECORD_BYTES = %d\r\n^IMAGE = 16\r\n"
+             "OBJECT = IMAGE\r\n  LINES = %d\r\n  LINE_SAMPLES = %d\r\n  SAMPLE_TYPE = MSB_INTEGER\r\n"
+             "  SAMPLE_BITS = 16\r\n  LINE_PREFIX_BYTES = %d\r\n  LINE_SUFFIX_BYTES = 2\r\n  BANDS = 1\r\n"
+             "  OFFSET = 10.0\r\n  SCALING_FACTOR = 0.5\r\n  MISSING_CONSTANT = -32768\r\nEND_OBJECT = IMAGE\r\n"
+             "END\r\n") % (record, lines, samples, prefix)
+    rows = b"".join(b"\x01\x02\x03\x04" + data[i].tobytes() + b"\0\0" for i in range(lines))
+    head = label.encode()
+    assert len(head) <= 15 * record
+    return head.ljust(15 * record, b" ") + rows
+
+
+def _geotiff_seeds(folder: Path) -> list[Seed]:
+    try:
+        import rasterio
+    except ImportError:
+        return []
+    rng = np.random.default_rng(8)
+    out = []
+    for name, kw in (("tiled_deflate.tif", {"tiled": True, "blockxsize": 16, "blockysize": 16, "compress": "deflate"}),
+                     ("strips.tif", {})):
+        p = folder / name
+        data = rng.normal(100, 20, (1, 40, 40)).astype(np.float32)
+        with rasterio.open(p, "w", driver="GTiff", width=40, height=40, count=1, dtype="float32", nodata=-9999.0,
+                           **kw) as ds:
+            ds.write(data)
+        out.append(Seed(p.read_bytes(), ".tif", {}, name))
+    return out
+
+
+def _run_config_text(folder: Path, labels: list[Path], pixels: list[Path], mk: Path) -> str:
+    images = "".join(f'[[images]]\nname = "im{i}"\nlabel = "{lab}"\npixels = "{pix}"\ngroup = "o{i % 2}"\n\n'
+                     for i, (lab, pix) in enumerate(zip(labels, pixels)))
+    return (f'[run]\noutput = "{folder / "run_out"}"\nname = "fuzz"\n\n[kernels]\nmetakernel = "{mk}"\n\n'
+            f'{images}[rpc]\nenabled = true\nheight_range = [-300.0, 300.0]\n\n[tiepoints]\ncell = 48\n'
+            'search = 128.0\n\n[adjust]\ndegree = 1\n')
+
+
 # --- the targets ------------------------------------------------------------------------------------
 
 def build_targets(folder: str | os.PathLike[str]) -> dict[str, Target]:
@@ -364,4 +462,47 @@ def build_targets(folder: str | os.PathLike[str]) -> dict[str, Target]:
     image_list.write_text("# label meta-kernel\n" + "".join(f"{p} {mission_mk}\n" for p in labels)
                           + f"'{labels[0]}' \"{mission_mk}\"  # quoted\n")
     targets["image_list"] = Target("image_list", call_image_list, [seed(image_list)])
+
+    # issue 28: pixels of ISIS cubes, PDS3 images and GeoTIFF
+    from lunarmap.io import write_cube
+
+    rng = np.random.default_rng(9)
+    pix = rng.normal(100, 20, (2, 20, 24))
+    pix[0, 2, 3] = np.nan
+    cubes_px = [Seed(write_cube(folder / "px_tile.cub", pix, pixel_type="SignedWord", base=50.0, multiplier=0.5,
+                                tile=(8, 8), label_bytes=4096).read_bytes(), ".cub", {}, "px_tile.cub"),
+                Seed(write_cube(folder / "px_bsq.cub", pix[0], pixel_type="Real", fmt="BandSequential",
+                                byte_order="Msb", label_bytes=4096).read_bytes(), ".cub", {}, "px_bsq.cub")]
+    targets["isis_cube"] = Target("isis_cube", call_isis_cube, cubes_px, kind="cube")
+    targets["pds3_image"] = Target("pds3_image", call_image, [Seed(_pds3_bytes(), ".img", {}, "image.img")])
+    tifs = _geotiff_seeds(folder)
+    if tifs:
+        targets["geotiff"] = Target("geotiff", call_image, tifs, kind="binary")
+
+    # ISIS control networks: binary versions 5 and 2, PVL
+    from lunarmap.io.isis_network import write_isis_network
+    from lunarmap.io.isis_network_pvl import write_pvl_network
+
+    import isisnet_help
+
+    isis_ds = isisnet_help.random_network(8, per_point=3, n_img=4, seed=2)
+    targets["isis_network_v5"] = Target("isis_network_v5", call_isis_network,
+                                        [seed(write_isis_network(isis_ds, folder / "n5.net"))], kind="cube")
+    targets["isis_network_v2"] = Target("isis_network_v2", call_isis_network,
+                                        [seed(write_isis_network(isis_ds, folder / "n2.net", version=2))], kind="cube")
+    targets["isis_network_pvl"] = Target("isis_network_pvl", call_isis_network,
+                                         [seed(write_pvl_network(isis_ds, folder / "n.pvl"))])
+
+    # a camera from spiceinit tables: the LRO NAC cube (a 400-line stand-in of its image, as in test_cube_camera)
+    if shared and (shared / "lro_nac_M103595705LE" / "M103595705LE.cub").is_file():
+        targets["cube_camera_lro"] = Target("cube_camera_lro", call_cube_camera,
+                                            [seed(shared / "lro_nac_M103595705LE" / "M103595705LE.cub",
+                                                  image_size=(400, 5064))], kind="cube")
+
+    # run configuration: absolute paths to files that exist
+    px = [folder / "px_bsq.cub"] * 2
+    cfg = folder / "run.toml"
+    cfg.write_text(_run_config_text(folder, labels[:2], px, mission_mk))
+    targets["run_config"] = Target("run_config", call_run_config, [seed(cfg)])
     return targets
+

@@ -25,6 +25,7 @@ import os
 import shutil
 import signal
 import tempfile
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -41,6 +42,47 @@ TIMEOUT = 20.0
 
 #: ``COUNTS[target][outcome]``: outcome ``"ok"`` or the name of the lunarmap exception raised.
 COUNTS: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+
+#: Per target, the slowest input: ``(seconds, seed name, bytes)``.
+SLOWEST: dict[str, tuple[float, str, int]] = {}
+
+#: Per target, the largest peak-memory growth of one input over the process's resident memory before it:
+#: ``(MB, seed name, bytes)`` (Linux: ``VmHWM`` reset per input through ``/proc/self/clear_refs``).
+PEAK_GROWTH: dict[str, tuple[float, str, int]] = {}
+
+#: Peak resident memory of the process over every input (kB).
+PEAK_RSS_KB = [0]
+
+#: Per target, inputs that took longer than :data:`TIME_BUDGET` seconds.
+OVER_TIME: collections.Counter = collections.Counter()
+
+#: The per-input budgets of issue 28: 2 s, and 10 x the file's size + 64 MB of memory beyond the process's.
+TIME_BUDGET = 2.0
+
+
+def memory_budget_mb(nbytes: int) -> float:
+    return (10 * nbytes + (64 << 20)) / 2 ** 20
+
+
+def _status_kb(key: str) -> int:
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith(key):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return 0
+
+
+def _reset_peak() -> bool:
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+        return True
+    except OSError:
+        return False
+
 
 #: When a dict, breaches are collected here (``(target, error type, where) -> example``) instead of
 #: raised, so that one exploratory run lists every distinct bug (``bench/fuzz.py --collect``).
@@ -363,6 +405,9 @@ def check_input(target: Target, seed: Seed, data: bytes, folder: Path) -> str:
     if target.prepare is not None:
         target.prepare(seed)
     fds = _open_fds()
+    measured = _reset_peak()
+    rss0 = _status_kb("VmRSS:")
+    t0 = time.perf_counter()
     old = signal.signal(signal.SIGALRM, _alarm)
     signal.setitimer(signal.ITIMER_REAL, TIMEOUT)
     try:
@@ -382,6 +427,22 @@ def check_input(target: Target, seed: Seed, data: bytes, folder: Path) -> str:
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
+        seconds = time.perf_counter() - t0
+        hwm = _status_kb("VmHWM:")
+        PEAK_RSS_KB[0] = max(PEAK_RSS_KB[0], hwm)
+        growth = (hwm - rss0) / 1024.0 if measured else 0.0
+        if seconds > SLOWEST.get(target.name, (-1.0,))[0]:
+            SLOWEST[target.name] = (seconds, seed.name, len(data))
+        if growth > PEAK_GROWTH.get(target.name, (-1.0,))[0]:
+            PEAK_GROWTH[target.name] = (growth, seed.name, len(data))
+        if seconds > TIME_BUDGET:
+            OVER_TIME[target.name] += 1
+    if measured and growth > memory_budget_mb(len(data)):
+        msg = (f"{target.name}: an input of {len(data)} bytes from {seed.name} grew the process by {growth:.0f} MB, "
+               "more than 10 x its size + 64 MB")
+        if COLLECT is None:
+            raise AssertionError(msg)
+        COLLECT.setdefault((target.name, "memory budget", ""), msg)
     after = sorted(os.listdir(folder))
     if after != before:
         raise AssertionError(f"{target.name}: files left behind: {sorted(set(after) - set(before))}")
@@ -391,11 +452,34 @@ def check_input(target: Target, seed: Seed, data: bytes, folder: Path) -> str:
     return outcome
 
 
+_WARM: set[str] = set()
+
+
+def warm_up(target: Target, folder: Path) -> None:
+    """Read every seed once before the timed inputs: imports and numba's compilation (tens of seconds on a
+    loaded machine the first time) are not an input's time."""
+    if target.name in _WARM:
+        return
+    _WARM.add(target.name)
+    for k, seed in enumerate(target.seeds):
+        path = folder / f"warm{k}{seed.suffix}"
+        path.write_bytes(seed.data)
+        if target.prepare is not None:
+            target.prepare(seed)
+        try:
+            target.call(path, seed)
+        except Exception:  # noqa: BLE001 - a seed's own outcome is the fuzzing's business, not the warm-up's
+            pass
+        finally:
+            path.unlink()
+
+
 def fuzz(target: Target, max_examples: int, derandomize: bool = True, seed: int | None = None) -> None:
     """Run ``max_examples`` generated inputs through ``target`` (raises on the first breach, shrunk)."""
     scratch = Path(tempfile.mkdtemp(prefix=f"fuzz_{target.name}_"))
     work = scratch / "work"
     work.mkdir()
+    warm_up(target, scratch)
     try:
         @settings(max_examples=max_examples, deadline=None, database=None, derandomize=derandomize,
                   suppress_health_check=list(HealthCheck), print_blob=False,

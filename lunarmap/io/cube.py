@@ -39,6 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..atomic import atomic_write
 from ..errors import CubeFormatError, CubeWriteError, LabelError
 from ..labels import Label, load_label, read_isis_table
+from ..labels.pvl import label_int
 from .pvl_write import format_pvl
 from .special import PIXEL_TYPES, SPECIAL_CODES, classify, encode_special
 
@@ -109,12 +110,13 @@ def _layout(label: Label, path: str) -> CubeLayout:
     core = cube["Core"]
     try:
         dims, pix = core["Dimensions"], core["Pixels"]
-        bands, lines, samples = int(dims["Bands"]), int(dims["Lines"]), int(dims["Samples"])
+        bands, lines, samples = (label_int(dims[k], f"ISIS cube {path}: Dimensions {k}") for k in ("Bands", "Lines",
+                                                                                                    "Samples"))
         ptype = str(pix["Type"])
         order = str(pix.get("ByteOrder", "Lsb"))
         base, mult = float(pix.get("Base", 0.0)), float(pix.get("Multiplier", 1.0))
         fmt = str(core.get("Format", "Tile"))
-    except (KeyError, TypeError, ValueError) as err:
+    except (KeyError, TypeError, ValueError, OverflowError) as err:
         raise CubeFormatError(f"ISIS cube {path}: Core/Dimensions or Core/Pixels is incomplete ({err})") from None
     if ptype not in PIXEL_TYPES:
         raise CubeFormatError(f"ISIS cube {path}: pixel type {ptype!r} is not supported; known: {sorted(PIXEL_TYPES)}")
@@ -127,11 +129,14 @@ def _layout(label: Label, path: str) -> CubeLayout:
     dtype = np.dtype(("<" if order.lower() == "lsb" else ">") + PIXEL_TYPES[ptype])
     detached = core.get("^Core")
     data_file = os.path.join(os.path.dirname(path), str(detached)) if detached is not None else path
-    start = int(core.get("StartByte", 1))
-    tl = int(core.get("TileLines", lines)) if fmt == "Tile" else lines
-    ts = int(core.get("TileSamples", samples)) if fmt == "Tile" else samples
-    if tl < 1 or ts < 1:
-        raise CubeFormatError(f"ISIS cube {path}: tile size {tl} x {ts} is not positive")
+    try:
+        start = label_int(core.get("StartByte", 1), f"ISIS cube {path}: Core StartByte", 1)
+        tl = label_int(core.get("TileLines", lines), f"ISIS cube {path}: TileLines", 1) if fmt == "Tile" else lines
+        ts = label_int(core.get("TileSamples", samples), f"ISIS cube {path}: TileSamples", 1) if fmt == "Tile" else samples
+    except LabelError as err:
+        raise CubeFormatError(str(err)) from None
+    if not (np.isfinite(base) and np.isfinite(mult)):
+        raise CubeFormatError(f"ISIS cube {path}: pixel Base {base} / Multiplier {mult} are not finite")
     return CubeLayout(data_file, start - 1, fmt, bands, lines, samples, dtype, tl, ts, base, mult)
 
 
@@ -279,7 +284,12 @@ class IsisCube:
                 f"but {lay.data_file} has {size} bytes")
         for obj in self.label.all("Table") + self.label.all("History") + self.label.all("OriginalLabel"):
             if isinstance(obj, Label) and "StartByte" in obj and "Bytes" in obj and "^Core" not in self.cube_label["Core"]:
-                end = int(obj["StartByte"]) - 1 + int(obj["Bytes"])
+                what = f"ISIS cube {self.path}: object {obj.get('Name', '?')}"
+                try:
+                    end = label_int(obj["StartByte"], f"{what} StartByte", 1) - 1 + label_int(obj["Bytes"],
+                                                                                            f"{what} Bytes", 0)
+                except LabelError as err:
+                    raise CubeFormatError(str(err)) from None
                 if end > os.path.getsize(self.path):
                     raise CubeFormatError(f"ISIS cube {self.path} is truncated: object {obj.get('Name', '?')} ends at "
                                           f"byte {end}, the file has {os.path.getsize(self.path)}")

@@ -69,6 +69,7 @@ from numpy.typing import NDArray
 from ..atomic import atomic_write
 from ..errors import IsisNetworkFormatError, LabelError
 from ..labels import Label, parse_label
+from ..labels.pvl import label_int
 from . import _protowire as pw
 from .isis_network_data import (APRIORI_SOURCES, ISIS_POINT_TYPES, LABEL_BYTES, MEASURE_TYPES, _COV_INDEX, _FIXED,
                                 _FREE, _NAN_BITS, _PIXEL, _REFERENCE, _columns_for_writing, _factorize, _get,
@@ -186,6 +187,9 @@ def _header_fields(buf: bytes, path: Path, version: int) -> dict[str, Any]:
                     raise IsisNetworkFormatError(f"ISIS control network {path}: malformed pointMessageSizes")
                 out["pointMessageSizes"] = sizes
             elif field == 10:
+                if n % 8:
+                    raise IsisNetworkFormatError(f"ISIS control network {path}: targetRadii of {n} bytes, not a "
+                                                 "multiple of 8")
                 out["targetRadii"] += list(struct.unpack(f"<{n // 8}d", buf[pos:pos + n]))
             pos += n
         elif wire == 0:
@@ -193,10 +197,14 @@ def _header_fields(buf: bytes, path: Path, version: int) -> dict[str, Any]:
             if field == 7:
                 out["numPoints"] = v
         elif wire == 1:
+            if pos + 8 > end:
+                raise IsisNetworkFormatError(f"ISIS control network {path}: truncated header message")
             if field == 10:
                 out["targetRadii"].append(struct.unpack("<d", buf[pos:pos + 8])[0])
             pos += 8
         elif wire == 5:
+            if pos + 4 > end:
+                raise IsisNetworkFormatError(f"ISIS control network {path}: truncated header message")
             pos += 4
         else:
             raise IsisNetworkFormatError(f"ISIS control network {path}: malformed header (wire type {wire})")
@@ -315,13 +323,17 @@ def read_isis_network(path: str | os.PathLike[str], images: list[str] | None = N
     if not isinstance(proto, Label):
         raise IsisNetworkFormatError(f"{path} is not an ISIS control network (no ProtoBuffer or ControlNetwork object)")
     info = proto.get("ControlNetworkInfo") if isinstance(proto.get("ControlNetworkInfo"), Label) else Label()
-    version = int(info.get("Version", 1))
+    try:
+        version = label_int(info.get("Version", 1), f"ISIS control network {path}: Version")
+    except LabelError as err:
+        raise IsisNetworkFormatError(str(err)) from None
     if version not in (2, 5):
         raise IsisNetworkFormatError(f"ISIS control network {path} is binary version {version}; lunarmap reads "
                                      "versions 2 and 5 (ISIS's since 2011; convert older ones with ISIS cnetbin2pvl)")
     core = proto.get("Core")
     try:
-        start, nbytes = int(core["HeaderStartByte"]), int(core["HeaderBytes"])
+        start = label_int(core["HeaderStartByte"], "HeaderStartByte", 0)
+        nbytes = label_int(core["HeaderBytes"], "HeaderBytes", 0)
     except (KeyError, TypeError, ValueError):
         raise IsisNetworkFormatError(f"ISIS control network {path}: ProtoBuffer/Core lacks HeaderStartByte/HeaderBytes") from None
     data = np.fromfile(path, dtype=np.uint8)
@@ -338,7 +350,11 @@ def read_isis_network(path: str | os.PathLike[str], images: list[str] | None = N
             raise IsisNetworkFormatError(f"ISIS control network {path} is truncated: its points need "
                                          f"{int(ends[-1])} bytes, the file has {data.size}")
     else:
-        total = int(core.get("PointsBytes", data.size - pstart))
+        try:
+            total = label_int(core.get("PointsBytes", data.size - pstart), f"ISIS control network {path}: "
+                              "PointsBytes", 0)
+        except LabelError as err:
+            raise IsisNetworkFormatError(str(err)) from None
         if pstart + total > data.size:
             raise IsisNetworkFormatError(f"ISIS control network {path} is truncated: points end at byte "
                                          f"{pstart + total}, the file has {data.size}")

@@ -54,7 +54,11 @@ def read_pvl_network(path: str | os.PathLike[str], images: list[str] | None = No
     net = label.get("ControlNetwork")
     if not isinstance(net, Label):
         raise IsisNetworkFormatError(f"{path} is not an ISIS control network (no ControlNetwork object)")
-    version = int(_num(net.get("Version", 1), 1))
+    v = _num(net.get("Version", 1), np.nan)
+    if not (np.isfinite(v) and v.is_integer()):
+        raise IsisNetworkFormatError(f"ISIS PVL control network {path}: Version {net.get('Version')!r:.40} is not an "
+                                     "integer")
+    version = int(v)
     if version not in (3, 4, 5):
         raise IsisNetworkFormatError(f"ISIS PVL control network {path} is version {version}; lunarmap reads "
                                      "versions 3 to 5 (convert with ISIS cnetpvl2bin and cnetbin2pvl)")
@@ -151,8 +155,12 @@ def read_pvl_network(path: str | os.PathLike[str], images: list[str] | None = No
              "isis_description": str(net.get("Description", "")), "isis_user_name": str(net.get("UserName", "")),
              "isis_version": version, "source": str(path)}
     if isinstance(radii, list) and radii:
-        attrs["isis_target_radii"] = np.asarray([float(r) for r in radii])
-        attrs["radius"] = float(radii[0])
+        values = np.asarray([_num(r) for r in radii], float)
+        if not np.all(np.isfinite(values) & (values > 0)):
+            raise IsisNetworkFormatError(f"ISIS PVL control network {path}: TargetRadii {radii!r:.80} are not "
+                                         "positive numbers")
+        attrs["isis_target_radii"] = values
+        attrs["radius"] = float(values[0])
     n = len(logs["measure"])
     mlogs = {"measure": logs["measure"], "type": logs["type"], "value": logs["value"], "bool_type": [-1] * n,
              "bool_value": [-1] * n}

@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 
 from ..errors import CubeFormatError, LabelError
 from ..labels import Label, parse_label
+from ..labels.pvl import label_int
 from .cube import IsisCube
 
 __all__ = ["open_image", "image_kind"]
@@ -137,16 +138,31 @@ class _LineReader:
         return out
 
 
+def _finite(value: Any, what: str) -> float:
+    """A label value as a finite number (a ``LabelError`` naming it otherwise)."""
+    try:
+        out = float(value)
+        if isinstance(value, bool) or not np.isfinite(out):
+            raise ValueError
+    except (TypeError, ValueError, OverflowError):
+        raise LabelError(f"{what} {value!r:.60} is not a finite number") from None
+    return out
+
+
 def _pointer(value: Any, record_bytes: int, label_path: str) -> tuple[str, int]:
     """File and 0-based byte offset of a PDS3 ``^IMAGE`` pointer."""
     folder = os.path.dirname(label_path)
     if isinstance(value, list):  # ("FILE.IMG", 5) or ("FILE.IMG", 1024 <BYTES>)
+        if not value:
+            raise CubeFormatError(f"PDS3 label {label_path}: its ^IMAGE pointer is empty")
         name, where = str(value[0]), value[1] if len(value) > 1 else 1
         path = os.path.join(folder, name)
     elif isinstance(value, str):
         path, where = os.path.join(folder, value), 1
     else:
         path, where = label_path, value
+    if not str(path).strip() or os.path.isdir(path):
+        raise CubeFormatError(f"PDS3 label {label_path}: its ^IMAGE pointer {value!r:.60} names no file")
     if not os.path.isfile(path):
         # labels name data files in upper case, archives on case-sensitive disks may not
         alt = [os.path.join(folder, f) for f in os.listdir(folder or ".") if f.lower() == os.path.basename(path).lower()]
@@ -154,7 +170,11 @@ def _pointer(value: Any, record_bytes: int, label_path: str) -> tuple[str, int]:
             raise CubeFormatError(f"PDS3 label {label_path}: its ^IMAGE file {path} does not exist")
         path = alt[0]
     unit = str(getattr(where, "unit", "")).upper()
-    offset = int(where) - 1 if unit == "BYTES" else (int(where) - 1) * record_bytes
+    try:
+        start = label_int(where, f"PDS3 label {label_path}: ^IMAGE position", 1)
+    except LabelError as err:
+        raise CubeFormatError(str(err)) from None
+    offset = start - 1 if unit == "BYTES" else (start - 1) * record_bytes
     return path, offset
 
 
@@ -174,14 +194,21 @@ def _open_pds3(path: str, chunks: Any) -> xr.DataArray:
     image = label.get("IMAGE")
     if not isinstance(image, Label) or "^IMAGE" not in label:
         raise CubeFormatError(f"PDS3 label {path} has no IMAGE object or ^IMAGE pointer")
+    what = f"PDS3 label {path}:"
     try:
-        lines, samples = int(image["LINES"]), int(image["LINE_SAMPLES"])
-        bands = int(image.get("BANDS", 1))
-        stype, bits = str(image["SAMPLE_TYPE"]).upper(), int(image["SAMPLE_BITS"])
-        prefix, suffix = int(image.get("LINE_PREFIX_BYTES", 0)), int(image.get("LINE_SUFFIX_BYTES", 0))
-        record_bytes = int(label.get("RECORD_BYTES", samples * bits // 8))
-    except (KeyError, TypeError, ValueError) as err:
-        raise CubeFormatError(f"PDS3 label {path}: IMAGE lacks or garbles {err}") from None
+        lines = label_int(image["LINES"], f"{what} LINES", 1)
+        samples = label_int(image["LINE_SAMPLES"], f"{what} LINE_SAMPLES", 1)
+        bands = label_int(image.get("BANDS", 1), f"{what} BANDS", 1)
+        stype, bits = str(image["SAMPLE_TYPE"]).upper(), label_int(image["SAMPLE_BITS"], f"{what} SAMPLE_BITS", 1)
+        prefix = label_int(image.get("LINE_PREFIX_BYTES", 0), f"{what} LINE_PREFIX_BYTES", 0)
+        suffix = label_int(image.get("LINE_SUFFIX_BYTES", 0), f"{what} LINE_SUFFIX_BYTES", 0)
+        record_bytes = label_int(label.get("RECORD_BYTES", samples * bits // 8), f"{what} RECORD_BYTES", 1)
+        scale = _finite(image.get("SCALING_FACTOR", 1.0), f"{what} SCALING_FACTOR")
+        add = _finite(image.get("OFFSET", 0.0), f"{what} OFFSET")
+    except KeyError as err:
+        raise CubeFormatError(f"PDS3 label {path}: IMAGE lacks {err}") from None
+    except LabelError as err:
+        raise CubeFormatError(str(err)) from None
     storage = str(image.get("BAND_STORAGE_TYPE", "BAND_SEQUENTIAL")).upper()
     if bands > 1 and storage != "BAND_SEQUENTIAL":
         raise CubeFormatError(f"PDS3 image {path}: band storage {storage} is not supported (band-sequential only)")
@@ -200,7 +227,6 @@ def _open_pds3(path: str, chunks: Any) -> xr.DataArray:
                         name=f"pds3-{abs(hash((data_file, offset, os.path.getmtime(data_file)))):x}",
                         meta=np.empty((0, 0, 0), dtype))
     nodata = [float(image[k]) for k in _NODATA_KEYS if k in image and isinstance(image[k], (int, float))]
-    scale, add = float(image.get("SCALING_FACTOR", 1.0)), float(image.get("OFFSET", 0.0))
     out_type = np.float64 if dtype.itemsize >= 4 and dtype.kind in "iu" or dtype.itemsize == 8 else np.float32
 
     def convert(block: NDArray) -> NDArray:
@@ -235,16 +261,26 @@ class _GdalReader:
             return np.empty((max(b1 - b0, 0), max(l1 - l0, 0), max(s1 - s0, 0)), self.dtype)
         import warnings
 
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # NotGeoreferencedWarning for plain images, on every window
-            with rasterio.open(self.path) as ds:
-                return ds.read(list(range(b0 + 1, b1 + 1)), window=Window(s0, l0, s1 - s0, l1 - l0))
+        from rasterio.errors import RasterioError
+
+        # a damaged tile fails here, when dask computes the chunk: named, with the window
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # NotGeoreferencedWarning for plain images, on every window
+                with rasterio.open(self.path) as ds:
+                    out = ds.read(list(range(b0 + 1, b1 + 1)), window=Window(s0, l0, s1 - s0, l1 - l0))
+        except (RasterioError, OSError, ValueError, MemoryError) as err:
+            raise CubeFormatError(f"{self.path}: GDAL cannot read lines [{l0}, {l1}) samples [{s0}, {s1}) "
+                                  f"({type(err).__name__}: {err})") from None
+        if out.shape != (b1 - b0, l1 - l0, s1 - s0):
+            raise CubeFormatError(f"{self.path}: GDAL read {out.shape} for lines [{l0}, {l1}) samples [{s0}, {s1})")
+        return out.astype(self.dtype, copy=False)
 
 
 def _open_gdal(path: str, chunks: Any) -> xr.DataArray:
     try:
         import rasterio
-        from rasterio.errors import RasterioIOError
+        from rasterio.errors import RasterioError
     except ImportError:
         raise CubeFormatError(f"{path} is neither an ISIS cube nor a PDS3 image; reading it (GeoTIFF, ...) needs "
                               "rasterio: pip install lunarmap[raster]") from None
@@ -259,8 +295,10 @@ def _open_gdal(path: str, chunks: Any) -> xr.DataArray:
                 nodata = ds.nodata
                 attrs = {"format": ds.driver, "crs": ds.crs.to_wkt() if ds.crs else "",
                          "transform": list(ds.transform)[:6]}
-    except RasterioIOError as err:
-        raise CubeFormatError(f"{path}: GDAL cannot read it ({err})") from None
+    except (RasterioError, OSError, ValueError, TypeError, IndexError) as err:
+        raise CubeFormatError(f"{path}: GDAL cannot read it ({type(err).__name__}: {err})") from None
+    if min(shape) < 1:
+        raise CubeFormatError(f"{path}: GDAL reads it as {shape[0]} band(s) of {shape[1]} x {shape[2]} pixels")
     raw = da.from_array(_GdalReader(path, shape, dtype), chunks=_chunks(chunks, *shape, dtype.itemsize), asarray=True,
                         name=f"gdal-{abs(hash((path, os.path.getmtime(path)))):x}", meta=np.empty((0, 0, 0), dtype))
     out_type = np.float64 if dtype.itemsize >= 4 and dtype.kind in "iu" or dtype.itemsize == 8 else np.float32

@@ -64,6 +64,8 @@ def read_isis_table(path: str | os.PathLike[str], name: str) -> tuple[dict[str, 
         ftype = str(f.get("Type", ""))
         if ftype not in _TYPES:
             raise LabelError(f"{where}: unsupported field type {ftype!r}")
+        if not str(f["Name"]).strip() or isinstance(f["Name"], (list, Label)):
+            raise LabelError(f"{where}: a Field group with an empty or non-text Name {f['Name']!r:.40}")
         fields.append((str(f["Name"]), order + _TYPES[ftype], label_int(f.get("Size", 1), f"{where}: field Size", 1)))
     if not fields:
         raise LabelError(f"{where}: no Field groups")

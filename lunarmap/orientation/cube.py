@@ -41,6 +41,7 @@ from numpy.typing import NDArray
 from ..errors import CubeFormatError, LabelError, MissingSpiceTablesError, UnknownInstrumentError
 from ..io.cube import IsisCube, Table, copy_cube_with_tables
 from ..labels import Label
+from ..labels.pvl import label_int
 from .exterior import ExteriorOrientation
 from .isd import ImageSupport
 from .isd import line_scan_epochs
@@ -102,12 +103,39 @@ def _table(cube: IsisCube, name: str, fields: tuple[str, ...]) -> tuple[dict[str
     if missing:
         raise CubeFormatError(f"ISIS cube {cube.path}: table {name} lacks field(s) {missing} (has {sorted(cols)}); "
                               "polynomial (jigsaw) tables are not read, spiceinit's caches are")
+    for f in fields:
+        if np.asarray(cols[f]).ndim != 1 or not np.all(np.isfinite(cols[f])):
+            raise CubeFormatError(f"ISIS cube {cube.path}: table {name} field {f} holds values that are not finite "
+                                  "numbers")
+    et = np.asarray(cols["ET"], float)
+    if et.size == 0:
+        raise CubeFormatError(f"ISIS cube {cube.path}: table {name} has no records")
+    if et.size > 1 and not np.all(np.diff(et) > 0):
+        k = int(np.nonzero(np.diff(et) <= 0)[0][0])
+        raise CubeFormatError(f"ISIS cube {cube.path}: table {name}: epochs (ET) do not increase at record {k + 1} "
+                              f"({et[k]!r} then {et[k + 1]!r})")
     return cols, meta
 
 
 def _int_list(meta: Label, key: str) -> list[int]:
     v = meta.get(key)
-    return [int(x) for x in (v if isinstance(v, list) else [v])] if v is not None else []
+    if v is None:
+        return []
+    try:
+        return [label_int(x, f"{key}") for x in (v if isinstance(v, list) else [v])]
+    except LabelError as err:
+        raise CubeFormatError(f"table keyword {err}") from None
+
+
+def _floats(meta: Label, key: str, path: str) -> list[float]:
+    v = meta[key]
+    try:
+        out = [float(x) for x in (v if isinstance(v, list) else [v])]
+    except (TypeError, ValueError):
+        raise CubeFormatError(f"ISIS cube {path}: table keyword {key} {v!r:.60} is not a list of numbers") from None
+    if not all(np.isfinite(out)):
+        raise CubeFormatError(f"ISIS cube {path}: table keyword {key} holds values that are not finite")
+    return out
 
 
 def _rotation_block(cube: IsisCube, name: str) -> dict[str, Any]:
@@ -121,7 +149,10 @@ def _rotation_block(cube: IsisCube, name: str) -> dict[str, Any]:
     if all(f"AV{i}" in cols for i in (1, 2, 3)):
         blk["angular_velocities"] = np.column_stack([cols[f"AV{i}"] for i in (1, 2, 3)]).tolist()
     if "ConstantRotation" in meta:
-        blk["constant_rotation"] = [float(x) for x in meta["ConstantRotation"]]
+        blk["constant_rotation"] = _floats(meta, "ConstantRotation", cube.path)
+        if len(blk["constant_rotation"]) != 9:
+            raise CubeFormatError(f"ISIS cube {cube.path}: table {name}: ConstantRotation has "
+                                  f"{len(blk['constant_rotation'])} values, not 9")
         blk["constant_frames"] = _int_list(meta, "ConstantFrames") or blk["time_dependent_frames"][:1]
     return blk
 

@@ -211,11 +211,16 @@ def _check_table(table: Mapping[str, Any], schema: Mapping[str, tuple[Any, bool]
             raise ConfigError(f"{src}: {where}.{key} must be {_type_name(types)}, got {v!r}")
 
 
-def _path(base: Path, value: str, key: str, src: str, must_exist: bool = True) -> Path:
+def _path(base: Path, value: str, key: str, src: str, must_exist: bool = True, folder: bool = False) -> Path:
+    if not str(value).strip() or "\0" in str(value):
+        # Path("") is ".": an empty value would silently name the configuration's folder
+        raise ConfigError(f"{src}: {key} = {value!r} is not a path")
     p = Path(value)
     p = p if p.is_absolute() else (base / p)
     if must_exist and not p.exists():
         raise ConfigError(f"{src}: {key} = {value!r}: file {p} does not exist")
+    if must_exist and not folder and p.is_dir():
+        raise ConfigError(f"{src}: {key} = {value!r}: {p} is a folder, not a file")
     return p
 
 

@@ -44,7 +44,7 @@ from ..errors import LunarmapError
 from ..procmem import peak_rss_mb
 from .steps import (Done, ImageDone, ImageJob, MatchJob, adjust_step, adjusted_rpc_batch, as_dict, image_steps,
                     kernels_step, match_batch, provenance, read_pixels, tiepoints_step)
-from .store import Store, file_digest, files_digest, load_digests, save_digests, step_key
+from .store import Store, _entry_digests, file_digest, files_digest, load_digests, save_digests, step_key
 
 __all__ = ["RunResult", "run", "build_graph", "STAGES"]
 
@@ -116,6 +116,36 @@ class _Graph:
     def computes(self) -> bool:
         """Whether any task has an output missing from the store (else every task only reads it)."""
         return any(not p.exists() for paths in self.outputs.values() for p in paths)
+
+
+def verify_outputs(store: Store, graph: _Graph) -> list[str]:
+    """Verify every stored entry the graph's tasks would reuse; a damaged one is removed (its step then
+    computes it again) with a :class:`~lunarmap.errors.StoreDamageWarning` naming it. Returns the problems."""
+    import warnings
+
+    from ..errors import StoreDamageWarning
+    from .store import entry_of, remove_entry, sidecar, verify_entry
+
+    problems = []
+    seen: set[Path] = set()
+    for paths in graph.outputs.values():
+        for p in paths:
+            entry = entry_of(store.root, p)
+            if entry in seen:
+                continue
+            seen.add(entry)
+            if not entry.exists():
+                if sidecar(entry).exists():
+                    sidecar(entry).unlink(missing_ok=True)
+                continue
+            why = verify_entry(entry)
+            if why is not None:
+                problems.append(why)
+                msg = f"store entry damaged, computing it again: {why}"
+                _log.warning(msg)
+                warnings.warn(msg, StoreDamageWarning, stacklevel=2)
+                remove_entry(entry)
+    return problems
 
 
 def _batches(items: list[Any], per_task: int) -> list[list[Any]]:
@@ -361,9 +391,17 @@ def _export(cfg: RunConfig, graph: _Graph, records: list[Done]) -> tuple[dict[st
     now: dict[str, str] = {}
 
     def fresh(src: str | Path, dst: Path) -> bool:
+        # copied from this store entry before, and still its content (a damaged copy is copied again)
         rel = str(dst.relative_to(out))
         now[rel] = str(src)
-        return copied.get(rel) == str(src) and dst.exists()
+        if not (copied.get(rel) == str(src) and dst.exists()):
+            return False
+        if Path(src).is_dir() != dst.is_dir():
+            return False
+        try:
+            return _entry_digests(Path(src)) == _entry_digests(dst) if Path(src).exists() else True
+        except OSError:
+            return False
 
     def copy(src: str | Path, dst: Path) -> Path:
         if fresh(src, dst):
@@ -410,13 +448,15 @@ def _export(cfg: RunConfig, graph: _Graph, records: list[Done]) -> tuple[dict[st
     summary["skipped_pairs"] = [f"{d.item}: {d.note}" for d in skipped]
     summary["pairs_apart"] = int(graph.apart)
     summary["pairs_candidate"] = len(graph.pairs)
-    (cfg.output / "steps.json").write_text(json.dumps(steps, indent=1))
-    manifest_path.write_text(json.dumps(now, indent=0))
+    from ..atomic import atomic_write
+
+    atomic_write(cfg.output / "steps.json", lambda tmp: tmp.write_text(json.dumps(steps, indent=1)))
+    atomic_write(manifest_path, lambda tmp: tmp.write_text(json.dumps(now, indent=0)))
     return files, summary
 
 
 def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, workers: int = 2,
-        report: bool | None = None) -> RunResult:
+        report: bool | None = None, wait: bool = False, force: bool = False) -> RunResult:
     """Run the chain of a configuration (see the module docstring).
 
     Parameters
@@ -429,18 +469,57 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
         Processes of the local cluster.
     report : bool, optional
         Write the HTML report (default: the configuration's ``report.html``).
+    wait : bool
+        When another run holds the folder's lock (:mod:`.lock`), wait for it (it then finds that run's
+        outputs stored) instead of stopping with :class:`~lunarmap.errors.RunLockedError`.
+    force : bool
+        Take the folder whatever its lock says (a run known to be gone, on another host).
 
     Raises
     ------
     ConfigError
         Invalid configuration or inputs, found before any work starts.
+    DiskWriteError, DiskFullError
+        The run folder is not writable, or its disk has too little space for what the run would store
+        (both checked before any work), or filled up while writing (the path is named; no file is left
+        half-written).
+    RunLockedError
+        Another run uses the folder.
     WorkflowError
         A step failed (named); finished steps stay in the store, and a rerun resumes.
     """
+    from ..atomic import check_writable
+    from .lock import RunLock
+
     cfg = config if isinstance(config, RunConfig) else load_config(config)
-    cfg.output.mkdir(parents=True, exist_ok=True)
+    check_writable(cfg.output, "the run folder")
+    with RunLock(cfg.output, wait=wait, force=force):
+        return _run_locked(cfg, scheduler, workers, report)
+
+
+def _space_needed(cfg: RunConfig, graph: _Graph) -> int:
+    """Bytes the store will need for the per-image entries still missing: ~0.6 x each such image's pixel
+    file (pyramid levels of 1/4 + 1/16 + ... of the image in float32 for 8-bit images are ~1/3 x 4 bytes per
+    pixel, fewer for wider types) + 1 MB per image; the block's outputs are small."""
+    need = 0
+    keys = [k for k in graph.outputs if k.startswith("image-")]
+    for i, im in enumerate(cfg.images):
+        paths = graph.outputs[keys[i]] if len(keys) == len(cfg.images) else [Path("/nonexistent")]
+        if any(not p.exists() for p in paths):
+            try:
+                need += int(0.6 * os.path.getsize(im.pixels)) + (1 << 20)
+            except OSError:
+                pass
+    return need
+
+
+def _run_locked(cfg: RunConfig, scheduler: Any, workers: int, report: bool | None) -> RunResult:
+    from ..atomic import disk_guard
+
     store = Store(cfg.output / "store")
-    handler = logging.FileHandler(cfg.output / "run.log")
+    with disk_guard(cfg.output / "run.log", "the run's log"):
+        store.root.mkdir(parents=True, exist_ok=True)
+        handler = logging.FileHandler(cfg.output / "run.log")
     handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s %(message)s"))
     root = logging.getLogger("lunarmap")
     root.addHandler(handler)
@@ -453,6 +532,14 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
         first = build_graph(cfg, store, images_only=True)
         _log.info("run %s: %d images, %d per-image tasks -> %s", cfg.name or cfg.source, len(first.names),
                   len(first.tasks), cfg.output)
+        verify_outputs(store, first)
+        need = _space_needed(cfg, first)
+        free = shutil.disk_usage(store.root).free
+        if need > free:
+            from ..errors import DiskFullError
+
+            raise DiskFullError(f"writing the run's store {store.root}: about {need >> 20} MB needed for the "
+                                f"images' pyramids and points, {free >> 20} MB free")
         progress = _Progress(first.stage_of)
         local = scheduler in ("sync", "threads", "synchronous", "processes")
 
@@ -474,12 +561,14 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
         _log.info("pairs: %d of %d whose footprints can meet; %d block tasks", len(graph.pairs), n_all,
                   len(graph.tasks))
         progress.add(graph.stage_of)
+        verify_outputs(store, graph)
         _execute(graph, scheduler_for(graph), progress)
         peaks = {"main": peak_rss_mb()}
         if client is not None:
             peaks.update(client.run(peak_rss_mb))
         save_digests(digests)
-        files, summary = _export(cfg, graph, progress.records)
+        with disk_guard(cfg.output / "outputs", "the run's outputs"):
+            files, summary = _export(cfg, graph, progress.records)
         summary["tasks"] = len(first.tasks) + len(graph.tasks)
         summary["peak_rss_mb"] = peaks
         result = RunResult(cfg, cfg.output, summary, files, progress.records, progress.stage_seconds,
@@ -506,6 +595,27 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
             cluster.close()
         root.removeHandler(handler)
         handler.close()
+
+
+def check_run(config: RunConfig | str | os.PathLike[str]) -> tuple[int, list[str]]:
+    """Verify a run folder's store against its checksums, reading every byte afresh; nothing is computed
+    or changed (``lunarmap run CONFIG --check``). Returns ``(entries checked, problems)``; the digest
+    cache (``digests.json``) is checked too."""
+    from .store import verify_store
+
+    cfg = config if isinstance(config, RunConfig) else load_config(config)
+    n, problems = verify_store(cfg.output / "store", fresh=True)
+    digests = cfg.output / "store" / "digests.json"
+    if digests.exists():
+        try:
+            doc = json.loads(digests.read_text())
+            import hashlib
+
+            if not isinstance(doc, dict) or hashlib.sha256(json.dumps(doc["rows"]).encode()).hexdigest() != doc["sha256"]:
+                raise ValueError("checksum mismatch")
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            problems.append(f"{digests}: damaged ({err}); a run recomputes the input digests")
+    return n, problems
 
 
 def _client(address: Any, workers: int, cfg: RunConfig) -> tuple[Any, Any]:

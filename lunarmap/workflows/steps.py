@@ -77,6 +77,10 @@ def provenance(config_digest: str, kernels: Sequence[str] = ()) -> dict[str, Any
 
 
 def _fail(step: str, item: str, err: Exception) -> WorkflowError:
+    from ..errors import DiskError
+
+    if isinstance(err, DiskError):   # already names the path and what was written
+        return err
     kind = type(err).__name__
     return WorkflowError(f"step {step} of {item or 'the block'} failed: {kind}: {err}")
 
@@ -285,13 +289,19 @@ def pyramid_step(store: Store, key: str, name: str, pixels: str, levels: int, sa
             import logging
 
             logging.getLogger(__name__).warning("%s: recomputing the pyramid: %s", name, err)
-            path.unlink(missing_ok=True)
+            from .store import remove_entry
+
+            remove_entry(path)
     from ..io.pyramid import write_pyramid
 
     final = store.path("pyramid", key, "nc")
     final.parent.mkdir(parents=True, exist_ok=True)
     try:
-        path = write_pyramid(_source(pixels), final, levels, saturation, digest=digest)
+        from ..atomic import disk_guard
+
+        with disk_guard(final, f"the pyramid of {name}"):
+            path = write_pyramid(_source(pixels), final, levels, saturation, digest=digest)
+        store.seal("pyramid", key, "nc")
     except LunarmapError as err:
         raise _fail("pyramid", name, err) from None
     return Done("pyramid", key, name, str(path), True, time.perf_counter() - t)
@@ -748,9 +758,9 @@ def kernels_step(store: Store, key: str, names: Sequence[str], adjusted: Done, i
     from ..orientation.isd import ImageSupport
     from ..orientation.kernels import write_orientation_kernels
 
-    folder.mkdir(parents=True, exist_ok=True)
     isd_list = [ImageSupport.read_json(Path(adjusted.path) / f"{n}.adjusted.json") for n in names]
     try:
+        folder.mkdir(parents=True, exist_ok=True)
         try:
             mk = write_orientation_kernels(isd_list, folder, metakernel, name="adjusted")
             index = {n: mk.name for n in names}
@@ -764,11 +774,23 @@ def kernels_step(store: Store, key: str, names: Sequence[str], adjusted: Done, i
             for k, group in enumerate(sets, start=1):
                 mk = write_orientation_kernels([isd_list[i] for i in group], folder, metakernel, name=f"adjusted_{k}")
                 index.update({names[i]: mk.name for i in group})
-    except LunarmapError as err:
-        raise _fail("kernels", "", err) from None
-    from ..atomic import atomic_write
+    except (LunarmapError, OSError) as err:
+        import shutil
 
-    path = atomic_write(folder / "kernels.json", lambda tmp: tmp.write_text(json.dumps(index, indent=1)))
+        from ..atomic import disk_error
+
+        shutil.rmtree(folder, ignore_errors=True)      # nothing half-written stays behind
+        named = disk_error(err, folder, "the adjusted kernels")
+        if named is not None:
+            raise named from err
+        if not isinstance(err, LunarmapError):
+            raise
+        raise _fail("kernels", "", err) from None
+    from ..atomic import atomic_write, disk_guard
+
+    with disk_guard(folder, "the adjusted kernels"):
+        path = atomic_write(folder / "kernels.json", lambda tmp: tmp.write_text(json.dumps(index, indent=1)))
+        store.seal("kernels", key)
     return Done("kernels", key, "", str(path), True, time.perf_counter() - t,
                 note=f"{len(set(index.values()))} kernel set(s)")
 

@@ -96,7 +96,9 @@ class _LroNac(Driver):
         value = self.summing()
         try:
             summing = int(value)
-        except (TypeError, ValueError) as err:
+            if isinstance(value, bool) or float(value) != summing:
+                raise ValueError(value)
+        except (TypeError, ValueError, OverflowError) as err:   # 1e999 is inf: int() overflows
             raise LabelError(f"label {self.source}: summing {value!r} is not an integer") from err
         if summing < 1:
             raise LabelError(f"label {self.source}: summing {summing} is not positive")
