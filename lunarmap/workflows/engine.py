@@ -46,7 +46,7 @@ from .steps import (Done, ImageDone, ImageJob, MatchJob, adjust_step, adjusted_r
                     kernels_step, match_batch, provenance, read_pixels, tiepoints_step)
 from .store import Store, file_digest, files_digest, load_digests, save_digests, step_key
 
-__all__ = ["RunResult", "run", "build_graph", "STAGES"]
+__all__ = ["RunResult", "RunPlan", "run", "plan", "build_graph", "STAGES"]
 
 _log = logging.getLogger(__name__)
 
@@ -112,6 +112,8 @@ class _Graph:
     pairs: list[tuple[str, str]]
     apart: int = 0                   # pairs left out because their footprints cannot meet
     outputs: dict[str, list[Path]] = field(default_factory=dict)   # dask key -> files the task writes
+    jobs: dict[str, Any] = field(default_factory=dict)             # image -> its ImageJob (keys of its steps)
+    heights: tuple[float, ...] = ()                                # of the footprints
 
     def computes(self) -> bool:
         """Whether any task has an output missing from the store (else every task only reads it)."""
@@ -175,6 +177,7 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
         heights = [min(heights[0], float(np.nanmin(dtm_values))), max(heights[1], float(np.nanmax(dtm_values)))]
     rpc_range = cfg.rpc_height_range if cfg.rpc_enabled else None
     image: dict[str, Any] = {}
+    jobs_of: dict[str, ImageJob] = {}
     isd_key: dict[str, str] = {}
     pix: dict[str, str] = {}
     for im in cfg.images:
@@ -195,10 +198,11 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
                store.path("pyramid", job.pyramid_key, "nc"), store.path("detect", job.detect_key, "npz")]
         if job.rpc_key is not None:
             out.append(store.path("rpc", job.rpc_key, "nc"))
+        jobs_of[im.name] = job
         image[im.name] = node("image", isd_key[im.name], image_steps, store, job, str(cfg.metakernel),
                               tuple(heights), rpc_range, params.detect, params.match.pyramid_levels, sat, out=out)
     if images_only:
-        return _Graph(tasks, stage_of, names, [], outputs=outputs)
+        return _Graph(tasks, stage_of, names, [], outputs=outputs, jobs=jobs_of, heights=tuple(heights))
     candidates = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
     apart = 0
     if done is not None and all(isinstance(v, ImageDone) for v in image.values()):
@@ -245,10 +249,11 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
     points = str(cfg.points) if cfg.points is not None else None
     qc = None if cfg.qc is None or not cfg.qc.steps else {**asdict(cfg.qc), "steps": list(cfg.qc.steps)}
     k_adj = step_key("adjust", [cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, groups, names]
-                     + ([qc] if qc is not None else []),
+                     + ([qc] if qc is not None else [])
+                     + ([cfg.points_other_images] if points and cfg.points_other_images != "error" else []),
                      [isd_key[n] for n in names] + [k_tie, file_digest(cfg.points) if points else ""])
     adj = node("adjust", k_adj, adjust_step, store, k_adj, names, groups, [rec[n]["isd"] for n in names], ties,
-               points, cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, attrs, qc,
+               points, cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, attrs, qc, cfg.points_other_images,
                out=[store.path("adjust", k_adj)])
     k_ker = step_key("kernels", None, [k_adj, kernels_digest])
     node("kernels", k_ker, kernels_step, store, k_ker, names, adj, [rec[n]["isd"] for n in names],
@@ -260,7 +265,107 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
             node("rpc_adjusted", step_key("rpc_adjusted_batch", None, [k for k, _ in group]), adjusted_rpc_batch,
                  store, group, adj, cfg.rpc_height_range,
                  out=[store.path("rpc_adjusted", k, "nc") for k, _ in group])
-    return _Graph(tasks, stage_of, names, pairs, apart, outputs)
+    return _Graph(tasks, stage_of, names, pairs, apart, outputs, jobs_of, tuple(heights))
+
+
+@dataclass
+class RunPlan:
+    """What :func:`run` would do (``lunarmap run --dry-run``), found without running any step.
+
+    Attributes
+    ----------
+    config : RunConfig
+    images : list of str
+    pairs : list of (str, str)
+        The candidate pairs: those whose footprints can meet (each gets a match step).
+    pairs_apart : int
+        Pairs left out because their footprints cannot meet.
+    steps : dict stage -> (int, int)
+        Per stage of :data:`STAGES`: tasks to compute, tasks whose outputs are all in the store (reused).
+    points : lunarmap.workflows.checks.PointsCheck
+        The points file's usable control and check points.
+    """
+
+    config: RunConfig
+    images: list[str]
+    pairs: list[tuple[str, str]]
+    pairs_apart: int
+    steps: dict[str, tuple[int, int]]
+    points: Any = None
+
+    def text(self) -> str:
+        """The plan as printed by ``lunarmap run --dry-run``."""
+        c = self.config
+        n = len(self.images)
+        lines = [f"run {c.name or c.source} -> {c.output}",
+                 f"  images ({n}): {', '.join(self.images)}",
+                 f"  candidate pairs: {len(self.pairs)} of {n * (n - 1) // 2} (footprints can meet; "
+                 f"{self.pairs_apart} apart): {', '.join(f'{a}/{b}' for a, b in self.pairs[:8])}"
+                 + (", ..." if len(self.pairs) > 8 else "")]
+        if c.points is not None and self.points is not None:
+            p = self.points
+            lines.append(f"  points {c.points}: {p.control} control, {p.check} check points"
+                         + (f" ({p.dropped_measures} measures in other images dropped)" if p.dropped_measures else ""))
+        lines.append("  steps (tasks to compute / reused from the store):")
+        lines += [f"    {s:<13} {k:4d} compute {r:4d} reuse" for s, (k, r) in self.steps.items() if k or r]
+        lines.append("nothing was run (--dry-run)")
+        return "\n".join(lines)
+
+
+def plan(config: RunConfig | str | os.PathLike[str]) -> RunPlan:
+    """The plan of a run: its checks (:func:`lunarmap.workflows.checks.check_before_work`), images,
+    candidate pairs and steps to compute or reuse; nothing is computed or written.
+
+    Footprints come from the store where it has them, else from each image's label and kernels (one
+    SPICE pass per image, in this process; no pixel is read).
+
+    Parameters
+    ----------
+    config : RunConfig or path-like
+
+    Returns
+    -------
+    RunPlan
+
+    Raises
+    ------
+    ConfigError
+        As :func:`run` before any step.
+    """
+    from ..camera.factory import camera_from_isd
+    from ..errors import NoOverlapError
+    from ..evaluate.footprint import candidate_pairs, footprint
+    from ..orientation.drivers import image_support
+    from .checks import check_before_work
+    from .steps import Done, ImageDone, footprint_step
+
+    cfg = config if isinstance(config, RunConfig) else load_config(config)
+    found = check_before_work(cfg)
+    store = Store(cfg.output / "store")
+    first = build_graph(cfg, store, images_only=True)
+    feet: dict[str, Any] = {}
+    done: dict[str, Any] = {}
+    spec = {im.name: im for im in cfg.images}
+    for name, job in first.jobs.items():
+        isd = Done("isd", job.isd_key, name, str(store.path("isd", job.isd_key, "json")), False)
+        if store.has("footprint", job.footprint_key, "npz"):
+            feet[name] = footprint_step(store, job.footprint_key, isd, first.heights)
+        else:
+            cam = camera_from_isd(image_support(spec[name].label, cfg.metakernel))
+            try:
+                feet[name] = [footprint(cam, height=h, per_side=8, name=name) for h in first.heights]
+            except NoOverlapError:
+                feet[name] = None
+        records = [isd] + [Done(s, k, name, "", False) for s, k in (("pyramid", job.pyramid_key),
+                                                                     ("detect", job.detect_key))]
+        done[f"image-{job.isd_key}"] = ImageDone(records, feet[name])
+    graph = build_graph(cfg, store, done=done)
+    steps = {s: [0, 0] for s in STAGES}
+    for g in (first, graph):
+        for k, st in g.stage_of.items():
+            steps[st][0 if any(not p.exists() for p in g.outputs.get(k, [])) else 1] += 1
+    return RunPlan(cfg, list(first.names), list(graph.pairs), graph.apart,
+                   {s: (a, b) for s, (a, b) in steps.items()}, found)
 
 
 def tiepoint_params(cfg: RunConfig) -> Any:
@@ -450,6 +555,9 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
     digests = store.root / "digests.json"
     load_digests(digests)
     try:
+        from .checks import check_before_work
+
+        check_before_work(cfg)     # what the steps would find late in the files, before any of them runs
         first = build_graph(cfg, store, images_only=True)
         _log.info("run %s: %d images, %d per-image tasks -> %s", cfg.name or cfg.source, len(first.names),
                   len(first.tasks), cfg.output)
