@@ -217,7 +217,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args))
     except LunarmapError as err:
-        print(f"lunarmap: error: {type(err).__name__}: {err}", file=sys.stderr)
+        log = getattr(err, "run_log", None)
+        print(f"lunarmap: error: {type(err).__name__}: {err}" + (f" (details in {log})" if log else ""),
+              file=sys.stderr)
         return 2
 
 

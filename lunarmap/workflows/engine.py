@@ -389,6 +389,15 @@ class _Progress:
         self.stage_seconds: dict[str, float] = {}
         self.every = every
         self._last = 0.0
+        self.seen = 0.0           # perf_counter of the last lunarmap log line (any step's, forwarded or not)
+
+    def heartbeat(self) -> None:
+        """Log the progress if nothing was logged for ``every`` seconds (tasks that run long)."""
+        now = time.perf_counter() - self.start
+        if now - max(self._last, self.seen - self.start) > self.every:
+            self._last = now
+            _log.info("progress at %.0f s: %s", now, "  ".join(f"{s} {self.done[s]}/{self.total[s]}" for s in STAGES
+                                                               if self.total[s]))
 
     def add(self, stage_of: dict[str, str]) -> None:
         """Count the tasks of another phase."""
@@ -412,14 +421,48 @@ class _Progress:
         if self.done[stage] == self.total[stage]:
             self.stage_seconds[stage] = now
             _log.info("%-9s %4d/%-4d done at %6.1f s", stage, self.done[stage], self.total[stage], now)
-        elif now - self._last > self.every:
             self._last = now
-            _log.info("progress: %s", "  ".join(f"{s} {self.done[s]}/{self.total[s]}" for s in STAGES
-                                                  if self.total[s]))
+        else:
+            self.heartbeat()
+
+
+class _Heartbeat(logging.Handler):
+    """A thread that calls ``progress.heartbeat()`` every second while a phase computes; as a handler of the
+    ``lunarmap`` logger it notes when any line was logged, so that it only fills silences."""
+
+    def __init__(self, progress: _Progress) -> None:
+        import threading
+
+        super().__init__(logging.INFO)
+        self.progress = progress
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._loop, name="lunarmap-progress", daemon=True)
+
+    def _loop(self) -> None:
+        while not self.stop.wait(1.0):
+            self.progress.heartbeat()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.progress.seen = time.perf_counter()
+
+    def __enter__(self) -> "_Heartbeat":
+        logging.getLogger("lunarmap").addHandler(self)
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.stop.set()
+        self.thread.join()
+        logging.getLogger("lunarmap").removeHandler(self)
 
 
 def _execute(graph: _Graph, scheduler: Any, progress: _Progress) -> dict[str, Any]:
     """Compute every task of ``graph``; returns dask key -> result."""
+    with _Heartbeat(progress):
+        return _compute(graph, scheduler, progress)
+
+
+def _compute(graph: _Graph, scheduler: Any, progress: _Progress) -> dict[str, Any]:
     keys = list(graph.tasks)
     results: dict[str, Any] = {}
     delayed = [graph.tasks[k] for k in keys]
@@ -552,6 +595,7 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
     if root.level == logging.NOTSET or root.level > logging.INFO:
         root.setLevel(logging.INFO)
     client = cluster = None
+    dask_logs: list[Any] = []
     digests = store.root / "digests.json"
     load_digests(digests)
     try:
@@ -571,6 +615,11 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
                 return "sync"
             if scheduler is None or (isinstance(scheduler, str) and not local):
                 if client is None:
+                    from ..parallel.plugin import dask_logs_to_file
+
+                    # distributed's own lines (a failed task's "Compute Failed" block, shutdown notices) go
+                    # to <run>/dask.log: the terminal gets lunarmap's one error line
+                    dask_logs.extend(dask_logs_to_file(str(cfg.output / "dask.log")))
                     client, cluster = _client(scheduler, workers, cfg)
                     _log.info("dask dashboard: %s", client.dashboard_link)
                 return client
@@ -607,13 +656,35 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
         counts = result.counts()
         _log.info("run finished: %s", ", ".join(f"{s} {c} computed / {k} reused" for s, (c, k) in counts.items()))
         return result
+    except BaseException as err:
+        # the details go to run.log only (the command line prints one line)
+        handler.handle(logging.LogRecord(_log.name, logging.ERROR, __file__, 0, "run failed: %s: %s",
+                                         (type(err).__name__, err), (type(err), err, err.__traceback__)))
+        if isinstance(err, LunarmapError):
+            err.run_log = cfg.output / "run.log"     # type: ignore[attr-defined]  # named by the command line
+        raise
     finally:
-        if client is not None:
-            client.close()
-        if cluster is not None:
-            cluster.close()
+        _shutdown(client, cluster)
+        if dask_logs:
+            from ..parallel.plugin import restore_dask_logs
+
+            restore_dask_logs(dask_logs)
         root.removeHandler(handler)
         handler.close()
+
+
+def _shutdown(client: Any, cluster: Any) -> None:
+    """Close the client, then the cluster (its workers first), each with a timeout."""
+    if client is not None:
+        try:
+            client.close(timeout=10)
+        except Exception as err:          # a scheduler already gone: nothing left to close
+            _log.debug("client close: %s", err)
+    if cluster is not None:
+        try:
+            cluster.close(timeout=30)
+        except Exception as err:
+            _log.debug("cluster close: %s", err)
 
 
 def _client(address: Any, workers: int, cfg: RunConfig) -> tuple[Any, Any]:
@@ -634,5 +705,9 @@ def _client(address: Any, workers: int, cfg: RunConfig) -> tuple[Any, Any]:
         except (OSError, TimeoutError) as err:
             raise ConfigError(f"no dask scheduler at {address}: {err}") from None
     register_kernels(client, str(cfg.metakernel))
+    from ..parallel.plugin import DaskLogsToFile
+
+    client.register_plugin(DaskLogsToFile(str(cfg.output / "dask.log")))
+    client.forward_logging("lunarmap", level=logging.INFO)     # steps' progress lines, on the client's handlers
     return client, cluster
 

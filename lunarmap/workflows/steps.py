@@ -624,6 +624,9 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
             resid = res.result.residuals_dataset()
             resid["image_name"] = ("obs", np.asarray(names, dtype=object)[resid["image"].values])
             resid["point_type"] = ("obs", block.network.point_type[resid["point"].values].astype(object))
+            resid["point_id"] = ("obs", block.network.point_id[resid["point"].values].astype(object))
+            # the measured image coordinates (line, sample), e.g. to compare with a simulation's truth
+            resid["observed"] = (("obs", "coord"), np.asarray(res.result.problem.obs.xy, float))
             if qc_out is not None:
                 resid["qc_removed"] = ("obs", ~qc_out.ledger.active)
                 qc_out.report.write(folder / "qc.nc")
