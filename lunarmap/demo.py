@@ -241,17 +241,23 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
     t_example = time.perf_counter() - t
     _log.info("example written (mission, rendered images, control and check points, run.toml): %.1f s", t_example)
     result = run(config, scheduler=scheduler, workers=workers)
+    _log.info("demo: comparing the results with the simulation's truth (cameras, adjusted kernels reloaded, RFMs)")
     bm = open_block_mission(out / "mission")
     names = list(bm.image_names)
     s = result.summary
     nav = {n: camera_from_isd_file(result.outputs["isd"] / f"{n}.json") for n in names}
     adjusted = {n: camera_from_isd_file(result.outputs["adjustment"] / f"{n}.adjusted.json") for n in names}
     truth = block_cameras(bm, "truth")
+    _log.info("demo: navigation, adjusted and truth cameras of %d images loaded", len(names))
 
     # the adjusted kernels, reloaded from the unchanged labels through the layered meta-kernel
     kernels_of = json.loads(result.outputs["kernels"].read_text())
     d_pos, d_px = 0.0, 0.0
-    for n in names:
+    t_log = time.perf_counter()
+    for k, n in enumerate(names):
+        if time.perf_counter() - t_log > 3.0:
+            t_log = time.perf_counter()
+            _log.info("demo: reloading the cameras through the adjusted kernels: %d of %d", k, len(names))
         again = lunarmap.load_camera(bm.label(n), result.outputs["kernels"].parent / kernels_of[n])
         L, S = _grid(again)
         X = adjusted[n].image_to_ground(L, S, height=0.0)
@@ -262,6 +268,7 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
     def centre_positions(sensors: dict[str, Any]) -> np.ndarray:
         return np.array([sensors[n].rays(0.5 * sensors[n].n_lines, 0.5 * sensors[n].n_samples)[0] for n in names])
 
+    _log.info("demo: adjusted kernels reloaded for %d images: %.2e px from the adjusted cameras", len(names), d_px)
     p_true, p_nav, p_adj = centre_positions(truth), centre_positions(nav), centre_positions(adjusted)
     with xr.open_dataset(result.outputs["adjustment"] / "corrections.nc") as corr:
         sig = corr["sigma"].values[:, 3:6]       # columns 3-5: c (frame) / c_0 (line scan), metres

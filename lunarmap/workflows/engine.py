@@ -636,6 +636,7 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
         if client is not None:
             peaks.update(client.run(peak_rss_mb))
         save_digests(digests)
+        _log.info("copying the outputs to %s", cfg.output / "outputs")
         files, summary = _export(cfg, graph, progress.records)
         summary["tasks"] = len(first.tasks) + len(graph.tasks)
         summary["peak_rss_mb"] = peaks
@@ -651,8 +652,11 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
             if result.computed == 0 and page.exists() and stamp.exists() and stamp.read_text() == adjusted:
                 result.report = page
             else:
+                t_report = time.perf_counter()
+                _log.info("writing the report (plots, tables)")
                 result.report = write_report(result)
                 stamp.write_text(adjusted)
+                _log.info("report %s written in %.1f s", result.report, time.perf_counter() - t_report)
         counts = result.counts()
         _log.info("run finished: %s", ", ".join(f"{s} {c} computed / {k} reused" for s, (c, k) in counts.items()))
         return result
@@ -664,6 +668,8 @@ def run(config: RunConfig | str | os.PathLike[str], scheduler: Any = None, worke
             err.run_log = cfg.output / "run.log"     # type: ignore[attr-defined]  # named by the command line
         raise
     finally:
+        if client is not None:
+            _log.info("stopping the local dask cluster" if cluster is not None else "closing the dask client")
         _shutdown(client, cluster)
         if dask_logs:
             from ..parallel.plugin import restore_dask_logs
