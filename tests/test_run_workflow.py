@@ -85,7 +85,13 @@ def test_serial_run_adjusts_the_block(serial):
         assert np.all(ds["weight_factor"].values[flags] == 0.0) and np.all(ds["weight_factor"].values[~flags] > 0)
     assert int(flags.sum()) == q["image_observations_removed"] == out_by_decisions
     assert "quality control: steps baarda" in (out["adjustment"] / "qc.txt").read_text()
-    assert "<h2>Quality control</h2>" in html
+    assert ">Quality control</h2>" in html
+    # the report judges (issue 29): a verdict first, the QC decisions as a sortable table with its columns
+    # explained, the check points one by one, no "None" for what a run does not have
+    assert html.index(">Verdict</h2>") < html.index(">Summary</h2>") and "sigma0 " in html.split(">Summary</h2>")[0]
+    assert "errors / predicted sigma RMS" in html and 'onclick="sortTable(this)"' in html
+    assert "what the columns mean" in html and html.count("<tr>") > out_by_decisions
+    assert ">Check points, one by one</h2>" in html and ">None<" not in html
 
 
 def test_rerun_reuses_everything_and_a_changed_parameter_reruns_only_what_depends_on_it(example, serial):

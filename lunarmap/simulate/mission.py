@@ -273,7 +273,9 @@ def render_block(mission: BlockMission | str | os.PathLike[str], output: str | o
     if write and not out_dir.is_dir():
         raise BlockMissionError(f"output folder {out_dir} does not exist")
     site_of = {n: bm.model.image(n).site for n in sel}
+    t_scene = time.perf_counter()
     scenes = {k: block_scene(bm, k) for k in dict.fromkeys(site_of.values())}
+    _log.info("rendering: scene (DTM and albedo) of %d site(s) built in %.1f s", len(scenes), time.perf_counter() - t_scene)
     samplers = {k: DtmSampler(dtm) for k, (dtm, _) in scenes.items()}
     cams = block_cameras(bm, "truth", sel)
     lazy = {}

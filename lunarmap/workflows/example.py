@@ -365,8 +365,11 @@ def _block_points(bm: Any, use: list[str], n_control: int, n_check: int, control
         # one site: the networks of the one-site example (seeds, point ids) exactly
         extra = 0 if n_sites == 1 else 1000 * site
         prefix = "" if n_sites == 1 else f"s{site}_"
+        _log.info("example: %d control points of site %d (visible in its %d images, on the true DTM)", n_control,
+                  site, len(here))
         control = block_check_points(bm, n_control, sigma_px=sigma_px, seed=seed + 11 + extra, cameras=truth,
                                      names=here)
+        _log.info("example: %d check points of site %d", n_check, site)
         check = block_check_points(bm, n_check, sigma_px=sigma_px, seed=seed + 12 + extra, cameras=truth, names=here)
         nets += [_points_network(control, "control", f"{prefix}C", control_sigma, rng),
                  _points_network(check, "check", f"{prefix}K")]

@@ -111,11 +111,12 @@ def verdict(summary: dict[str, Any], residuals: xr.Dataset | None = None,
             t = qc_truth
             prec = t["removed_wrong"] / t["removed"] if t["removed"] else float("nan")
             rec = t["removed_wrong"] / t["wrong"] if t["wrong"] else float("nan")
-            text += (f"; against the simulation's truth {t['removed_wrong']} of the {t['removed']} removed tie "
-                     f"observations were true mismatches (> {t['limit_px']:g} px from the true conjugate; "
-                     f"precision {prec:.2f}), of {t['wrong']} in the block (recall "
-                     + (f"{rec:.2f}" if t["wrong"] else "n/a: there were none") + f"); the removed ones' true error "
-                     f"median {t['removed_median_px']:.2f} px, the kept ones' {t['kept_median_px']:.2f} px")
+            text += (f"; against the simulation's truth {t['removed_wrong']} of the {t['removed']:,} removed tie "
+                     f"observations were true mismatches (> {t['limit_px']:g} px from the true conjugate: precision "
+                     f"{prec:.2f}), of {t['wrong']} in the block (recall "
+                     + (f"{rec:.2f}" if t["wrong"] else "n/a: the block has none, so every removal was of a good "
+                        "observation") + f"); true error of the removed median {t['removed_median_px']:.2f} px, of "
+                     f"the kept {t['kept_median_px']:.2f} px")
             out.append(("warn" if t["removed"] and prec < 0.5 else "ok", text + "."))
         else:
             out.append(("info", text + " (how many were wrong is known only where the truth is, e.g. the example)."))
@@ -190,18 +191,26 @@ function sortTable(th) {
 </script>"""
 
 
-def _label_positions(xy: np.ndarray, min_dist: float, rounds: int = 200) -> np.ndarray:
-    """Label positions near ``xy`` pushed apart to at least ``min_dist`` (simple repulsion)."""
-    p = np.array(xy, float)
-    for _ in range(rounds):
-        d = p[:, None, :] - p[None, :, :]
-        r = np.hypot(d[..., 0], d[..., 1]) + np.eye(len(p))
-        push = np.clip(min_dist - r, 0, None) / r
-        np.fill_diagonal(push, 0.0)
-        if not push.any():
-            break
-        p += 0.5 * np.sum(d * push[..., None], axis=1)
-    return p
+def _label_positions(outlines: list[np.ndarray], min_gap: float) -> np.ndarray:
+    """One label position per outline, on the outline, chosen greedily far from the labels placed before
+    (footprints of a block overlap: their centres crowd, their outlines do not); ``min_gap`` weighs a
+    candidate's distance to the other outlines' labels against staying near the outline's corners."""
+    placed: list[np.ndarray] = []
+    for poly in outlines:
+        ok = poly[np.all(np.isfinite(poly), axis=1)]
+        if not ok.size:
+            placed.append(np.array([np.nan, np.nan]))
+            continue
+        # candidates: the outline's vertices and the midpoints between them
+        cand = np.concatenate([ok, 0.5 * (ok + np.roll(ok, -1, axis=0))])
+        if placed and np.isfinite(np.array(placed)).any():
+            p = np.array([q for q in placed if np.all(np.isfinite(q))])
+            d = np.min(np.hypot(cand[:, None, 0] - p[None, :, 0], cand[:, None, 1] - p[None, :, 1]), axis=1)
+            best = int(np.argmax(np.minimum(d, 3 * min_gap)))
+        else:
+            best = 0
+        placed.append(cand[best])
+    return np.array(placed)
 
 
 def _table(header: list[tuple[str, str]], rows: list[list[Any]], sortable: bool = False, cls: str = "") -> str:
@@ -248,7 +257,8 @@ def write_report(result: Any, qc_truth: dict[str, Any] | None = None) -> Path:
     def degrees(ax: Any) -> None:
         # plain degrees (no offset, no "+5.7e1"), with as many decimals as the ticks' spacing needs
         for axis, lim in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
-            step = abs(lim[1] - lim[0]) / 6 or 1.0
+            axis.set_major_locator(mticker.MaxNLocator(5))
+            step = abs(lim[1] - lim[0]) / 5 or 1.0
             dec = int(max(0, np.ceil(-np.log10(step))))
             axis.set_major_formatter(mticker.FuncFormatter(lambda v, _, d=dec: f"{v:.{d}f}\N{DEGREE SIGN}"))
 
@@ -256,11 +266,11 @@ def write_report(result: Any, qc_truth: dict[str, Any] | None = None) -> Path:
         import matplotlib.pyplot as plt
 
         colours = plt.get_cmap("tab20")
-        centres = []
+        outlines = []
         for k, (name, poly) in enumerate(feet.items()):
             ok = np.all(np.isfinite(poly), axis=1)
             ax.plot(poly[ok, 0], poly[ok, 1], lw=1.2, color=colours(k % 20), label=f"{k + 1}: {name}")
-            centres.append(np.nanmean(poly[ok], axis=0) if ok.any() else np.array([np.nan, np.nan]))
+            outlines.append(poly)
         kind = pts["point_type"].values.astype(str)
         for k, c, m, sz in (("tie", "0.55", ".", 3), ("control", "tab:red", "^", 30), ("check", "tab:blue", "o", 22)):
             sel = kind == k
@@ -268,15 +278,15 @@ def write_report(result: Any, qc_truth: dict[str, Any] | None = None) -> Path:
                 ax.scatter(pts["lon"].values[sel], pts["lat"].values[sel], s=sz, c=c, marker=m, zorder=3,
                            label=f"{k} points ({int(sel.sum())})", edgecolors="white" if k != "tie" else "none",
                            linewidths=0.5)
-        if centres:
-            c = np.array(centres)
-            span = max(np.nanmax(c[:, 0]) - np.nanmin(c[:, 0]), np.nanmax(c[:, 1]) - np.nanmin(c[:, 1]), 1e-6)
-            spread = _label_positions(c, 0.06 * span)
-            for k, (xy, lab) in enumerate(zip(c, spread)):
-                ax.annotate(str(k + 1), xy, xytext=lab, fontsize=8, ha="center", va="center", color=colours(k % 20),
+        if outlines:
+            allp = np.concatenate(outlines)
+            span = max(float(np.nanmax(allp[:, 0]) - np.nanmin(allp[:, 0])),
+                       float(np.nanmax(allp[:, 1]) - np.nanmin(allp[:, 1])), 1e-9)
+            for k, xy in enumerate(_label_positions(outlines, 0.05 * span)):
+                if np.all(np.isfinite(xy)):
+                    ax.text(xy[0], xy[1], str(k + 1), fontsize=8, ha="center", va="center", color=colours(k % 20),
                             fontweight="bold", zorder=4,
-                            bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": colours(k % 20), "lw": 0.8},
-                            arrowprops={"arrowstyle": "-", "color": colours(k % 20), "lw": 0.6})
+                            bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": colours(k % 20), "lw": 0.8})
         ax.set_xlabel("longitude (east)")
         ax.set_ylabel("latitude (north)")
         degrees(ax)
