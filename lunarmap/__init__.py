@@ -10,6 +10,7 @@ The calls that take a user from image labels to adjusted kernels::
     ties = lunarmap.find_tiepoints(images, cameras)                     # tie-point table (dask)
     block = lunarmap.build_block(cameras, ties, navigation=spec)        # adjustment block
     result = lunarmap.solve(block)                                      # adjusted sensors, precision
+    lon, lat, h = lunarmap.xyz_to_lonlat_height(result.points()["xyz"])  # ground points -> degrees, metres
     out = lunarmap.write_adjusted(result, isds, "out/", "lro_nac.tm")   # adjusted SPK + CK + meta-kernel
 
 Everything else stays in its package (:mod:`lunarmap.camera`, :mod:`lunarmap.rpc`,
@@ -42,8 +43,13 @@ import importlib
 import logging
 from typing import Any
 
+from typing import TYPE_CHECKING
+
 from . import errors
 from .errors import LunarmapError
+
+if TYPE_CHECKING:   # for the annotations of solve (imported on first use, not with lunarmap)
+    from .adjust import AdjustmentResult, Block, BlockResult, BundleProblem, SolverOptions
 
 __version__ = "0.1.0"
 
@@ -64,6 +70,9 @@ _LAZY = {
     "build_block": ("lunarmap.adjust", "build_block"),
     "NavigationSpec": ("lunarmap.adjust", "NavigationSpec"),
     "write_adjusted": ("lunarmap.adjust", "write_adjusted"),
+    # ground coordinates (body-fixed metres) <-> planetocentric longitude, latitude (degrees), height (metres)
+    "xyz_to_lonlat_height": ("lunarmap.camera.geodesy", "xyz_to_lonlat_height"),
+    "lonlat_height_to_xyz": ("lunarmap.camera.geodesy", "lonlat_height_to_xyz"),
     # ISIS and ASP interop (issue 14)
     "camera_from_cube": ("lunarmap.camera.cube", "camera_from_cube"),
     "open_image": ("lunarmap.io.raster", "open_image"),
@@ -87,12 +96,37 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
 
 
-def solve(block_or_problem: Any, options: Any = None, **kwargs: Any) -> Any:
-    """Adjust a :class:`~lunarmap.adjust.Block` (returns a :class:`~lunarmap.adjust.BlockResult`) or a
-    :class:`~lunarmap.adjust.BundleProblem` (returns an :class:`~lunarmap.adjust.AdjustmentResult`).
+def solve(block_or_problem: Block | BundleProblem, options: SolverOptions | None = None,
+          **kwargs: Any) -> BlockResult | AdjustmentResult:
+    """Adjust a block (or a bare bundle problem) by damped Gauss-Newton with a sparse Schur complement.
 
-    ``options`` is a :class:`~lunarmap.adjust.SolverOptions`; keyword arguments go to
-    :func:`lunarmap.adjust.solve` (``reweight``, ``callback``).
+    Parameters
+    ----------
+    block_or_problem : lunarmap.adjust.Block or lunarmap.adjust.BundleProblem
+        A block from :func:`lunarmap.build_block` (cameras, network, navigation), or a problem built
+        by hand.
+    options : lunarmap.adjust.SolverOptions, optional
+        Iteration controls (``ftol``, ``xtol``, ``max_iterations``, the factorisation ``backend``,
+        ``progress``: seconds between iteration lines on the ``lunarmap`` logger).
+    **kwargs
+        ``reweight`` and ``callback`` for :func:`lunarmap.adjust.solve` (called after each accepted step).
+
+    Returns
+    -------
+    lunarmap.adjust.BlockResult or lunarmap.adjust.AdjustmentResult
+        For a block, a ``BlockResult``: ``sigma0``, ``converged``, ``adjusted_sensors()`` (new cameras;
+        the originals are untouched), ``points()`` (adjusted coordinates with posterior sigmas),
+        ``corrections()``, ``check_points()`` (errors against the check points' reference coordinates)
+        and the underlying ``result``; for a problem, that ``AdjustmentResult`` (``state``,
+        ``sigma0``, ``precision()``, ``residuals_dataset()``).
+
+    Raises
+    ------
+    DatumDefectError
+        The normal equations are singular: the block has no datum (add navigation observations or
+        control points).
+    AdjustmentDivergedError
+        The cost became non-finite and no step could reduce it.
     """
     from . import adjust
 

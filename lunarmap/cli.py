@@ -3,18 +3,20 @@
 ``lunarmap isd LABEL --kernels META_KERNEL [-o FILE] [--csm]``
     write the CSM image support data (ALE ISD layout) of one image; ``--csm``: with a distortion model
     usgscsm applies (a fitted transverse polynomial for the Apollo metric and Lunar Orbiter cameras).
-``lunarmap run CONFIG [--scheduler ADDRESS] [--workers N] [--serial] [--wait | --force] [--check]``
+``lunarmap run CONFIG [--scheduler ADDRESS] [--workers N] [--serial] [--dry-run] [--wait | --force] [--check]``
     the whole chain of a run configuration (TOML, see :mod:`lunarmap.workflows.config`) as one dask
-    graph: ISDs, RPCs, tie points, adjustment, adjusted kernels, report; resumable. One run per folder
-    at a time (``run.lock``): a second one stops with a named error, or waits with ``--wait``;
-    ``--force`` takes the folder whatever its lock says. ``--check`` verifies every stored output
-    against its checksum without computing anything (exit status 1 when one is damaged).
+    graph: ISDs, RPCs, tie points, adjustment, adjusted kernels, report; resumable. Everything the
+    configuration names is checked before any step runs; ``--dry-run`` prints the plan (images,
+    candidate pairs, steps to compute or reuse) and stops. One run per folder at a time (``run.lock``):
+    a second one stops with a named error, or waits with ``--wait``; ``--force`` takes the folder
+    whatever its lock says. ``--check`` verifies every stored output against its checksum without
+    computing anything (exit status 1 when one is damaged).
 ``lunarmap run --example [--output DIR] [--seed N] [--quick] [--full-size]`` (= ``lunarmap demo``)
     writes the embedded example (a synthetic mission with rendered images and perturbed navigation;
     with ``--full-size`` eight LRO-NAC-like images of 52,224 x 5,064 pixels as ISIS cubes) and runs it;
     prints accuracy against the simulation's truth. What is already written is not written again.
 ``lunarmap ranger-kernels TABLE -o DIR [--focal-length MM --format MM --pixel MM]``
-    write a flight-parameter table (Ranger paper) as a SPICE kernel set with labels (issue 13).
+    write a flight-parameter table (Ranger paper) as a SPICE kernel set with labels.
 """
 
 from __future__ import annotations
@@ -26,7 +28,17 @@ from typing import Any, Sequence
 
 from .errors import LunarmapError
 
-__all__ = ["main"]
+__all__ = ["main", "plain_text"]
+
+
+def plain_text(text: str) -> str:
+    """``text`` without its reStructuredText markup (for ``--help``): ````x```` -> x, :func:`~a.b` -> b."""
+    import re
+
+    text = re.sub(r":[a-z]+:`~?([^`<]*?)(?:\s*<[^>]*>)?`", lambda m: m.group(1).split(".")[-1]
+                  if "~" in m.group(0) else m.group(1), text)
+    text = re.sub(r"``([^`]*)``", r"\1", text)
+    return re.sub(r"\*\*([^*]*)\*\*", r"\1", text)
 
 
 def _cmd_isd(args: argparse.Namespace) -> int:
@@ -100,15 +112,33 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_plan(args: argparse.Namespace) -> int:
+    from .workflows import plan, write_example
+
+    handler = _progress_to_stderr()
+    try:
+        config = args.config
+        if args.example:
+            config = write_example(args.output, seed=args.seed, quick=args.quick, full_size=args.full_size)
+        print(plan(config).text())
+    finally:
+        import logging
+
+        logging.getLogger("lunarmap").removeHandler(handler)
+    return 0
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     import logging
 
-    if args.example:
-        if args.config:
-            raise SystemExit("lunarmap run: give a CONFIG or --example, not both")
-        return _cmd_demo(args)
-    if not args.config:
+    if args.example and args.config:
+        raise SystemExit("lunarmap run: give a CONFIG or --example, not both")
+    if not args.example and not args.config:
         raise SystemExit("lunarmap run: a CONFIG (TOML) or --example is needed")
+    if getattr(args, "dry_run", False):
+        return _cmd_plan(args)
+    if args.example:
+        return _cmd_demo(args)
     from .workflows import run
 
     if getattr(args, "check", False):
@@ -145,7 +175,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="lunarmap", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="lunarmap", formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="lunarmap: planetary photogrammetry for the Moon, from SPICE kernels and image labels to "
+                    "adjusted orientations.",
+        epilog="commands:\n" + plain_text(__doc__.split("\n\n", 1)[1]).split("\n\nfrom __future__")[0])
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("isd", help="write the image support data (ALE/CSM ISD JSON) of an image")
     p.add_argument("label", help="ISIS cube or label, or PDS3 label")
@@ -166,6 +200,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="when another run uses the folder, wait for it instead of stopping")
     r.add_argument("--force", action="store_true",
                    help="take the run folder whatever its lock says (a run known to be gone)")
+    r.add_argument("--dry-run", action="store_true",
+                   help="check everything, print the plan (images, candidate pairs, steps to compute or reuse) and "
+                        "stop; nothing is computed")
     d = sub.add_parser("demo", help="the same as 'run --example'")
     for q in (r, d):
         q.add_argument("--scheduler", help="address of a running dask scheduler (default: a local cluster)")
@@ -199,7 +236,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args))
     except LunarmapError as err:
-        print(f"lunarmap: error: {type(err).__name__}: {err}", file=sys.stderr)
+        log = getattr(err, "run_log", None)
+        print(f"lunarmap: error: {type(err).__name__}: {err}" + (f" (details in {log})" if log else ""),
+              file=sys.stderr)
         return 2
 
 

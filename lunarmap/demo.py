@@ -67,6 +67,9 @@ class DemoReport:
     rpc_check_rms_px: dict[str, float] = field(default_factory=dict)
     rpc_adjusted_check_rms_px: dict[str, float] = field(default_factory=dict)
     quality_control: str = ""
+    sigma0_first: float = float("nan")
+    sigma0_after_qc: float = float("nan")
+    qc_truth: dict[str, Any] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=dict)
     files: dict[str, Path] = field(default_factory=dict)
 
@@ -79,10 +82,10 @@ class DemoReport:
             f"  block: {len(self.images)} images ({', '.join(self.images[:4])}, ...) on {self.orbits} orbits, NAVIGATION "
             "kernels with per-orbit offsets and drifts",
             f"  tie points from the matcher: {self.n_tie_points} points, {self.n_observations} image observations",
-            f"  adjustment on the rigorous cameras: sigma0 {self.sigma0:.3f} (tie-point sigma x "
-            f"{self.tie_sigma_scale:.2f} from variance-component estimation)",
+            "  adjustment on the rigorous cameras: " + self.sigma0_text(),
             *([f"  {self.quality_control}"] if self.quality_control else []),
-            "  check points vs truth, RMS along-track / cross-track / height / 3-D (m):",
+            *([f"  {self.qc_truth_text()}"] if self.qc_truth else []),
+            "  check points vs truth, RMS along-track / cross-track / height / 3-D (m; the frame of the report):",
             f"    before (navigation): {b[0]:8.3f} {b[1]:8.3f} {b[2]:8.3f} {b3:8.3f}",
             f"    after (adjusted):    {a[0]:8.3f} {a[1]:8.3f} {a[2]:8.3f} {a3:8.3f}   ({b3 / a3:.0f}x smaller)",
             f"    posterior sigma:     {s[0]:8.3f} {s[1]:8.3f} {s[2]:8.3f} {s3:8.3f}   "
@@ -100,6 +103,102 @@ class DemoReport:
             f"  report: {self.files.get('report', '')}; configuration: {self.files.get('config', '')}",
         ]
         return "\n".join(lines)
+
+
+    def sigma0_text(self) -> str:
+        """The one sigma0 line: first adjustment, after quality control, with the estimated tie-point sigma."""
+        parts = []
+        if np.isfinite(self.sigma0_first):
+            parts.append(f"{self.sigma0_first:.3f} (first adjustment) -> {self.sigma0_after_qc:.3f} after QC -> ")
+        return (f"sigma0 {''.join(parts)}{self.sigma0:.3f} with the tie-point sigma x {self.tie_sigma_scale:.2f} "
+                "(variance-component estimation; 1 if the sigmas are right)")
+
+    def qc_truth_text(self) -> str:
+        """QC's removals against the simulation's true conjugates (precision and recall)."""
+        q = self.qc_truth
+        return (f"QC vs truth: {q['removed']} of {q['observations']} tie observations removed, "
+                f"{q['removed_wrong']} of them true mismatches (> {q['limit_px']:g} px from the true conjugate); "
+                f"{q['wrong']} true mismatches in all: precision {_ratio(q['removed_wrong'], q['removed'])}, recall "
+                f"{_ratio(q['removed_wrong'], q['wrong'])}; true error of the removed median "
+                f"{q['removed_median_px']:.2f} px, of the kept {q['kept_median_px']:.2f} px")
+
+
+def _ratio(a: int, b: int) -> str:
+    return f"{a / b:.2f}" if b else "n/a (none)"
+
+
+def qc_against_truth(residuals: xr.Dataset, truth: dict[str, Any], names: list[str], dtm: xr.DataArray,
+                     limit_px: float = 1.0) -> dict[str, Any]:
+    """The tie observations quality control removed, against the simulation's true conjugates.
+
+    An observation's true error is its distance from the true conjugate of its point's other rays: each
+    ray is cast through the truth camera onto the true DTM and the ground point projected into the
+    observation's image through its truth camera; the error is the smallest over the other rays (a ray
+    with at least one right partner is right). A **true mismatch** is an observation more than
+    ``limit_px`` from every other ray's conjugate (both rays of a wrong 2-ray point).
+
+    Parameters
+    ----------
+    residuals : xarray.Dataset
+        The run's ``outputs/adjustment/residuals.nc`` (``observed``, ``image``, ``point``, ``point_type``,
+        ``qc_removed``).
+    truth : dict image name -> SensorModel
+        The truth cameras.
+    names : list of str
+        Image names in the order of ``residuals['image']``.
+    dtm : xarray.DataArray
+        The true DTM (``lat`` x ``lon``).
+    limit_px : float
+
+    Returns
+    -------
+    dict
+        ``observations``, ``removed``, ``wrong``, ``removed_wrong`` (counts of tie observations),
+        ``precision``, ``recall``, ``removed_median_px``, ``kept_median_px``, ``limit_px``.
+    """
+    from .camera.intersect import DtmSampler
+
+    sampler = DtmSampler(dtm)
+    tie = residuals["point_type"].values.astype(str) == "tie"
+    obs = np.asarray(residuals["observed"].values, float)[tie]
+    img = residuals["image"].values[tie]
+    pt = residuals["point"].values[tie]
+    removed = residuals["qc_removed"].values.astype(bool)[tie] if "qc_removed" in residuals else np.zeros(tie.sum(), bool)
+    ground = np.full((img.size, 3), np.nan)
+    for i, n in enumerate(names):
+        m = img == i
+        if m.any():
+            ground[m] = truth[n].image_to_ground(obs[m, 0], obs[m, 1], dtm=sampler, on_miss="nan")
+    order = np.argsort(pt, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(pt[order]) != 0])
+    ends = np.r_[starts[1:], order.size]
+    a_list, b_list = [], []
+    for s0, e0 in zip(starts, ends):
+        idx = order[s0:e0]
+        if idx.size > 1:
+            a, b = np.meshgrid(idx, idx, indexing="ij")
+            off = a != b
+            a_list.append(a[off])
+            b_list.append(b[off])
+    err = np.full(img.size, np.inf)
+    if a_list:
+        a, b = np.concatenate(a_list), np.concatenate(b_list)
+        d = np.full(a.size, np.inf)
+        for i, n in enumerate(names):
+            m = (img[a] == i) & np.all(np.isfinite(ground[b]), axis=1)
+            if m.any():
+                li, sa = truth[n].ground_to_image(ground[b[m]], within_image=False)
+                d[m] = np.hypot(li - obs[a[m], 0], sa - obs[a[m], 1])
+        np.minimum.at(err, a, np.where(np.isfinite(d), d, np.inf))
+    wrong = err > limit_px
+    fin = np.isfinite(err)
+    return {"observations": int(img.size), "removed": int(removed.sum()), "wrong": int(wrong.sum()),
+            "removed_wrong": int((removed & wrong).sum()),
+            "precision": float((removed & wrong).sum() / removed.sum()) if removed.any() else float("nan"),
+            "recall": float((removed & wrong).sum() / wrong.sum()) if wrong.any() else float("nan"),
+            "removed_median_px": float(np.median(err[removed & fin])) if (removed & fin).any() else float("nan"),
+            "kept_median_px": float(np.median(err[~removed & fin])) if (~removed & fin).any() else float("nan"),
+            "limit_px": float(limit_px)}
 
 
 def _grid(cam: Any, n: int = 9) -> tuple[np.ndarray, np.ndarray]:
@@ -142,17 +241,23 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
     t_example = time.perf_counter() - t
     _log.info("example written (mission, rendered images, control and check points, run.toml): %.1f s", t_example)
     result = run(config, scheduler=scheduler, workers=workers)
+    _log.info("demo: comparing the results with the simulation's truth (cameras, adjusted kernels reloaded, RFMs)")
     bm = open_block_mission(out / "mission")
     names = list(bm.image_names)
     s = result.summary
     nav = {n: camera_from_isd_file(result.outputs["isd"] / f"{n}.json") for n in names}
     adjusted = {n: camera_from_isd_file(result.outputs["adjustment"] / f"{n}.adjusted.json") for n in names}
     truth = block_cameras(bm, "truth")
+    _log.info("demo: navigation, adjusted and truth cameras of %d images loaded", len(names))
 
     # the adjusted kernels, reloaded from the unchanged labels through the layered meta-kernel
     kernels_of = json.loads(result.outputs["kernels"].read_text())
     d_pos, d_px = 0.0, 0.0
-    for n in names:
+    t_log = time.perf_counter()
+    for k, n in enumerate(names):
+        if time.perf_counter() - t_log > 3.0:
+            t_log = time.perf_counter()
+            _log.info("demo: reloading the cameras through the adjusted kernels: %d of %d", k, len(names))
         again = lunarmap.load_camera(bm.label(n), result.outputs["kernels"].parent / kernels_of[n])
         L, S = _grid(again)
         X = adjusted[n].image_to_ground(L, S, height=0.0)
@@ -163,6 +268,7 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
     def centre_positions(sensors: dict[str, Any]) -> np.ndarray:
         return np.array([sensors[n].rays(0.5 * sensors[n].n_lines, 0.5 * sensors[n].n_samples)[0] for n in names])
 
+    _log.info("demo: adjusted kernels reloaded for %d images: %.2e px from the adjusted cameras", len(names), d_px)
     p_true, p_nav, p_adj = centre_positions(truth), centre_positions(nav), centre_positions(adjusted)
     with xr.open_dataset(result.outputs["adjustment"] / "corrections.nc") as corr:
         sig = corr["sigma"].values[:, 3:6]       # columns 3-5: c (frame) / c_0 (line scan), metres
@@ -175,6 +281,24 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
         for folder, worst in (("rpc", rpc_rms), ("rpc_adjusted", rpc_adj_rms)):
             rms = float(read_netcdf(result.outputs[folder] / f"{n}.nc").attrs.get("check_rms", np.nan))
             worst[kind] = max(worst.get(kind, 0.0), rms)
+    q = s.get("qc") or {}
+    qc_truth: dict[str, Any] = {}
+    if q:
+        from .simulate.mission import block_dtm_file
+
+        with xr.open_dataset(result.outputs["adjustment"] / "residuals.nc") as ds:
+            resid = ds.load()
+        with xr.open_dataarray(bm.folder / block_dtm_file(bm)) as da:
+            dtm = da.load()
+        if "observed" in resid:
+            t = time.perf_counter()
+            qc_truth = qc_against_truth(resid, truth, names, dtm)
+            _log.info("QC against the simulation's true conjugates: %d of %d removed tie observations are true "
+                      "mismatches (%.1f s)", qc_truth["removed_wrong"], qc_truth["removed"], time.perf_counter() - t)
+            if result.report is not None:
+                from .workflows.report import write_report
+
+                write_report(result, qc_truth=qc_truth)      # the report's verdict says it too
     seconds = {"example": t_example, **{k: v for k, v in _stage_durations(result.stage_seconds).items()}}
     return DemoReport(
         folder=out, images=names, orbits=bm.model.orbits, n_tie_points=int(s["n_points"]), n_observations=int(s["n_observations"]),
@@ -184,7 +308,9 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
         camera_error_before=float(np.sqrt(np.mean(np.sum((p_nav - p_true) ** 2, axis=1)))),
         camera_error_after=float(np.sqrt(np.mean(np.sum((p_adj - p_true) ** 2, axis=1)))),
         camera_normalized_rms=float(np.sqrt(np.mean(z ** 2))), reload_position_mm=1e3 * d_pos, reload_px=d_px,
-        rpc_check_rms_px=rpc_rms, rpc_adjusted_check_rms_px=rpc_adj_rms, quality_control=qc_text(s), seconds=seconds,
+        rpc_check_rms_px=rpc_rms, rpc_adjusted_check_rms_px=rpc_adj_rms, quality_control=qc_text(s, sigma0=False),
+        sigma0_first=float(q.get("sigma0_first", np.nan)), sigma0_after_qc=float(q.get("sigma0_last", np.nan)),
+        qc_truth=qc_truth, seconds=seconds,
         files={"metakernel": result.outputs.get("metakernel", result.outputs["kernels"]),
                "tiepoints": result.outputs["tiepoints"],
                "report": result.report or Path(), "config": config, "navigation": bm.navigation_metakernel,

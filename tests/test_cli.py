@@ -90,7 +90,13 @@ def test_demo_runs_the_whole_chain(tmp_path, capsys):
     after = np.array(text.split("after (adjusted):")[1].split("(")[0].split(), float)
     sigma = np.array(text.split("posterior sigma:")[1].split("(")[0].split(), float)
     z = float(text.split("errors / sigma: RMS ")[1].split(";")[0])
-    sigma0 = float(text.split("sigma0 ")[1].split(" ")[0])
+    # one sigma0 line: first adjustment -> after quality control -> with the estimated tie-point sigma
+    line = next(ln for ln in text.splitlines() if "sigma0 " in ln and "after QC" in ln)
+    sigma0 = float(line.split(" with the tie-point sigma")[0].split()[-1])
+    assert float(line.split("sigma0 ")[1].split()[0]) > sigma0
+    # quality control against the simulator's true conjugates: precision and recall
+    truth = next(ln for ln in text.splitlines() if "QC vs truth:" in ln)
+    assert "precision" in truth and "recall" in truth and "true mismatches" in truth
     assert before[3] > 10.0                         # metres: the navigation errors of tens of metres
     assert after[3] * 10 < before[3]                # at least 10x better (3-D RMS; 115x with seed 0)
     assert np.all(after < 3 * sigma) and 0.7 < z < 1.3

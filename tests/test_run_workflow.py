@@ -85,7 +85,13 @@ def test_serial_run_adjusts_the_block(serial):
         assert np.all(ds["weight_factor"].values[flags] == 0.0) and np.all(ds["weight_factor"].values[~flags] > 0)
     assert int(flags.sum()) == q["image_observations_removed"] == out_by_decisions
     assert "quality control: steps baarda" in (out["adjustment"] / "qc.txt").read_text()
-    assert "<h2>Quality control</h2>" in html
+    assert ">Quality control</h2>" in html
+    # the report judges (issue 29): a verdict first, the QC decisions as a sortable table with its columns
+    # explained, the check points one by one, no "None" for what a run does not have
+    assert html.index(">Verdict</h2>") < html.index(">Summary</h2>") and "sigma0 " in html.split(">Summary</h2>")[0]
+    assert "errors / predicted sigma RMS" in html and 'onclick="sortTable(this)"' in html
+    assert "what the columns mean" in html and html.count("<tr>") > out_by_decisions
+    assert ">Check points, one by one</h2>" in html and ">None<" not in html
 
 
 def test_rerun_reuses_everything_and_a_changed_parameter_reruns_only_what_depends_on_it(example, serial):
@@ -437,3 +443,87 @@ def test_pixels_that_do_not_match_their_label_are_named(example):
     cfg = _config(example, "mismatch", **{'pixels = "mission/orbit1_nac.nc"': 'pixels = "mission/orbit2_frame_a.nc"'})
     with pytest.raises(WorkflowError, match="orbit1_nac.*label.*says"):
         run(cfg, scheduler="sync", report=False)
+
+
+# -- checks before any work (issue 29) ---------------------------------------------------------------
+
+def _without(text: str, start: str, end: str) -> str:
+    return text[:text.index(start)] + text[text.index(end):]
+
+
+def _no_store_entries(folder: Path) -> bool:
+    return not (folder / "store").exists() or not any(p.is_file() and p.name != "digests.json"
+                                                      for p in (folder / "store").rglob("*"))
+
+
+def test_points_measured_in_images_not_in_the_configuration_fail_before_any_step(example):
+    text = example.read_text().replace('output = "run"', 'output = "subset"')
+    sub = _without(text, '[[images]]\nname = "orbit2_frame_a"', "[dtm]")
+    cfg = example.parent / "subset.toml"
+    cfg.write_text(sub)
+    with pytest.raises(ConfigError, match='points.path.*orbit2_frame_a.*other_images = "ignore"') as err:
+        run(cfg, scheduler="sync")
+    assert "subset.toml" in str(err.value) and "points.nc" in str(err.value)
+    assert _no_store_entries(example.parent / "subset")
+    # the fix the message names: those measures are dropped, and the plan says so
+    from lunarmap.workflows import plan
+
+    cfg.write_text(sub.replace('path = "points.nc"', 'path = "points.nc"\nother_images = "ignore"'))
+    p = plan(cfg)
+    assert p.images == NAMES[:3] and p.points.dropped_measures > 0 and p.points.control >= 3
+    assert "measures in other images dropped" in p.text()
+    assert _no_store_entries(example.parent / "subset")
+
+
+def test_no_points_and_no_navigation_is_a_datum_error_before_any_step(example):
+    text = example.read_text().replace('output = "run"', 'output = "nodatum"')
+    text = _without(_without(text, "[points]", "[rpc]"), "[adjust.navigation]", "[adjust.qc]")
+    cfg = example.parent / "nodatum.toml"
+    cfg.write_text(text)
+    with pytest.raises(ConfigError, match=r"no datum.*add \[adjust.navigation\].*3 or more control points"):
+        run(cfg, scheduler="sync")
+    assert _no_store_entries(example.parent / "nodatum")
+
+
+def test_without_points_the_run_estimates_the_tie_variance_from_the_tie_points(example, serial):
+    """No [points] (optional): the default estimate_tie_variance has only the tie-point group to estimate."""
+    text = serial.config.source.read_text().replace('output = "serial"', 'output = "nopoints"')
+    text = _without(_without(text, "[points]", "[rpc]"), "[adjust.qc]", "[report]")
+    cfg = example.parent / "nopoints.toml"
+    cfg.write_text(text)
+    shutil.copytree(serial.folder / "store", example.parent / "nopoints" / "store", dirs_exist_ok=True)
+    res = run(cfg, scheduler="sync", report=False)
+    counts = res.counts()
+    assert counts["adjust"] == (1, 0) and counts["match"][0] == 0     # only the adjustment and what follows
+    s = res.summary
+    assert abs(s["sigma0"] - 1.0) < 0.1 and s["converged"] and len(s["variance_factors"][-1]) == 1
+    assert "check_rms_after_m" not in s
+
+
+def test_dry_run_prints_the_plan_and_computes_nothing(example, serial, capsys):
+    from lunarmap.cli import main
+
+    assert main(["run", str(serial.config.source), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert f"images ({len(NAMES)}): " + ", ".join(NAMES) in out
+    assert "candidate pairs: 6 of 6" in out and "nothing was run" in out
+    assert "adjust           0 compute    1 reuse" in out         # the serial run's store has it
+    cfg = _config(example, "dryrun")
+    assert main(["run", str(cfg), "--dry-run"]) == 0
+    assert "image            4 compute    0 reuse" in capsys.readouterr().out
+    assert _no_store_entries(example.parent / "dryrun")
+
+
+def test_a_failing_step_prints_one_lunarmap_line_and_nothing_from_dask(example):
+    """On a local cluster: the worker's "Compute Failed" block and the shutdown notices go to dask.log."""
+    cfg = _config(example, "failing", **{'pixels = "mission/orbit1_nac.nc"': 'pixels = "mission/orbit2_frame_a.nc"'})
+    proc = subprocess.run([sys.executable, "-m", "lunarmap", "run", str(cfg), "--workers", "1"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2
+    errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("lunarmap: error:")]
+    assert len(errors) == 1 and "orbit1_nac" in errors[0] and "run.log" in errors[0], proc.stderr
+    assert all(ln.startswith("lunarmap: ") for ln in proc.stderr.splitlines()), proc.stderr
+    for noise in ("distributed", "Traceback", "Compute Failed", "nanny"):
+        assert noise not in proc.stderr
+    log = (example.parent / "failing" / "run.log").read_text()
+    assert "Traceback" in log and "WorkflowError" in log

@@ -193,6 +193,12 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
     representation : str
         Control-point weighting, see :meth:`ControlNetwork.priors`.
 
+    Returns
+    -------
+    Block
+        The block: ``names``, the sensor ``model``, the ``network``, the ``problem`` to solve and the
+        ``navigation`` observations; adjust it with :func:`lunarmap.solve`.
+
     Raises
     ------
     AdjustmentInputError

@@ -89,6 +89,22 @@ def read_isis_network(path: str | os.PathLike[str], images: list[str] | None = N
 
     ``images``: serial numbers of the block's images (a measure on another image raises
     :class:`~lunarmap.errors.UnknownImageError`); see :func:`network_from_isis` for the rest.
+
+    Parameters
+    ----------
+    path : path-like
+        The network (``.net`` binary version 2 or 5, or PVL).
+    images : list of str, optional
+        Serial numbers of the block's images.
+    sigma : float
+        Measurement sigma (pixels) of measures that carry none.
+    keep_ignored : bool
+        Keep ignored measures (of points that are not ignored).
+
+    Returns
+    -------
+    ControlNetwork
+        Points, measures (pixels, CSM convention) and images (their serial numbers as ids).
     """
     return network_from_isis(_files.read_isis_network(path, images=images), sigma=sigma, keep_ignored=keep_ignored)
 
@@ -144,6 +160,26 @@ def write_isis_network(net: ControlNetwork | xr.Dataset, path: str | os.PathLike
     """Write a network (with an adjustment's results) as an ISIS control network, atomically.
 
     ``pvl=True`` writes the PVL form (``cnetbin2pvl``'s), otherwise binary ``version`` 5 or 2.
+
+    Parameters
+    ----------
+    net : ControlNetwork or xarray.Dataset
+        The network, or its ISIS Dataset (:func:`isis_dataset`).
+    path : path-like
+        Output file.
+    result : BlockResult, optional
+        Adjusted coordinates and residuals to write with it.
+    serials : mapping image id -> serial number, optional
+        ISIS serial numbers of the images (default: the image ids).
+    version : int
+        Binary format version, 5 or 2.
+    pvl : bool
+        Write the PVL form instead of binary.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
     """
     ds = net if isinstance(net, xr.Dataset) else isis_dataset(net, result=result, serials=serials)
     if pvl:

@@ -77,6 +77,12 @@ class SolverOptions:
     compiled: bool = True
     verbose: bool = False   # log every iteration at INFO (else DEBUG) on the 'lunarmap.adjust.solver' logger
     check_datum: bool = True
+    #: progress: log an iteration (cost, sigma0, step) at INFO when this many seconds passed since the last
+    #: such line of any solve in this process (0: every iteration); None: only with ``verbose``
+    progress: float | None = None
+
+
+_last_progress = [0.0]     # time of the last progress line (shared by consecutive solves: QC rounds)
 
 
 def _model_decrease(lin: Linearization, mu: float, D: NDArray, dred: NDArray, dp: NDArray) -> float:
@@ -171,8 +177,17 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
         actual = state.cost - new_cost
         step_norm = np.sqrt(np.sum(dred ** 2) + np.sum(dp ** 2))
         x_norm = np.sqrt(np.sum(state.cam_params ** 2) + np.sum(state.points ** 2) + np.sum(state.extra ** 2))
-        _log.log(logging.INFO if opt.verbose else logging.DEBUG,
-                 "it %3d cost %.6e -> %.6e mu %.2e |dx| %.3e", n_iter, state.cost, new_cost, mu, step_norm)
+        now = time.perf_counter()
+        if opt.progress is not None and now - _last_progress[0] >= opt.progress:
+            _last_progress[0] = now
+            r = problem.n_observations() - 2 * int(np.sum(state.obs_weight == 0)) - problem.n_unknowns()
+            s0 = np.sqrt(2.0 * min(new_cost, state.cost) / r) if r > 0 and np.isfinite(new_cost) else float("nan")
+            _log.info("adjustment iteration %d: cost %.6g -> %.6g (%s), sigma0 %.4f, step %.3g, damping %.1e",
+                      n_iter, state.cost, new_cost, "accepted" if new_cost < state.cost else "rejected", s0,
+                      step_norm, mu)
+        else:
+            _log.log(logging.INFO if opt.verbose else logging.DEBUG,
+                     "it %3d cost %.6e -> %.6e mu %.2e |dx| %.3e", n_iter, state.cost, new_cost, mu, step_norm)
         if np.isfinite(new_cost) and actual > 0:
             rho = actual / pred if pred > 0 else 1.0
             mu = max(mu * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), opt.min_mu)

@@ -24,6 +24,7 @@ redundancy matrix of small blocks; its correlations name the groups the data can
 from __future__ import annotations
 
 import dataclasses
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,6 +39,8 @@ from .weights import Weights, reweighted_problem
 
 #: a group's redundancy below this during the iteration means its variance is heading to 0 (not estimable)
 BOUNDARY_REDUNDANCY = 0.05
+
+_log = logging.getLogger(__name__)
 
 __all__ = ["VarianceEstimate", "image_variance_factors", "estimate_image_variances", "ObservationGroups",
            "observation_groups", "group_variance_factors", "VarianceComponents", "estimate_variance_components",
@@ -125,9 +128,11 @@ def estimate_image_variances(problem: BundleProblem, groups: NDArray[np.int64], 
     history = []
     pb = problem
     result = solve(pb, options)
-    for _ in range(max(rounds, 1)):
+    for rnd in range(max(rounds, 1)):
         factors, r = image_variance_factors(result, groups, k)
         history.append(factors)
+        _log.info("variance estimation round %d: sigma0 %.4f, variance factors %s (sigma scale so far %s)", rnd + 1,
+                  result.sigma0, " ".join(f"{f:.3f}" for f in factors), " ".join(f"{x:.3f}" for x in scale))
         step = np.where(estimate, np.sqrt(factors), 1.0)
         if np.all(np.abs(factors[estimate] - 1.0) <= tol):
             return VarianceEstimate(result, scale, history, r)

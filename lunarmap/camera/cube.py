@@ -33,6 +33,11 @@ def camera_from_cube(path: str | os.PathLike[str], shape: Shape | None = None, d
         ``(lines, samples)`` of the image the tables describe, for stand-in cubes (see
         :func:`~lunarmap.orientation.cube.image_support_from_cube`).
 
+    Returns
+    -------
+    FrameCamera or LineScanCamera
+        The cube's rigorous camera.
+
     Raises
     ------
     MissingSpiceTablesError, UnknownInstrumentError, CubeFormatError

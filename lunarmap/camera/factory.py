@@ -171,6 +171,11 @@ def camera_from_isd_file(path: str | os.PathLike[str], shape: Shape | None = Non
     distortion : bool
         ``False`` builds the model without lens distortion.
 
+    Returns
+    -------
+    SensorModel
+        A ``FrameCamera``, ``LineScanCamera``, ``PushFrameCamera`` or ``SarSensor``.
+
     Raises
     ------
     FileNotFoundError
@@ -193,6 +198,11 @@ def load_camera(label: str | os.PathLike[str], kernels: str | os.PathLike[str] |
         Meta-kernel or kernel set.
     shape, distortion
         As for :func:`camera_from_isd`.
+
+    Returns
+    -------
+    SensorModel
+        The image's rigorous camera (as :func:`camera_from_isd` of its :func:`lunarmap.image_support`).
     """
     from ..orientation.drivers import image_support
 

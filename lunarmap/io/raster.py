@@ -81,6 +81,11 @@ def open_image(path: str | os.PathLike[str], chunks: Any = None) -> xr.DataArray
         Dask chunks ``(lines, samples)`` or ``(bands, lines, samples)``; ISIS cubes also take
         ``"tile"``. Default: about 16 MB of whole lines (ISIS: one row of tiles).
 
+    Returns
+    -------
+    xarray.DataArray
+        Dims ``(line, sample)`` (or ``(band, line, sample)``), dask-backed; NaN for special pixels.
+
     Raises
     ------
     FileNotFoundError

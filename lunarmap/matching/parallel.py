@@ -145,7 +145,12 @@ def find_tiepoints(images: Mapping[str, xr.DataArray | NDArray], sensors: Mappin
         default: every pair ``(a, b)`` with ``a`` before ``b``.
     height : float or xarray.DataArray
         Prediction height (metres) or coarse DTM.
-    params : TiePointParams
+    params : TiePointParams, optional
+        Every setting of the chain: ``detect`` (Förstner interest points: cell size, thresholds),
+        ``match`` (pyramid NCC and least-squares matching: search radius, window, pyramid levels,
+        saturation), ``ransac`` (local affine model of each pair), ``track_tol`` (pixels: positions of
+        one image this close are one feature of a track) and ``max_points`` (most interest points
+        matched per pair, uniform over the overlap; ``None``: all). Default ``TiePointParams()``.
     scheduler : str or distributed.Client
         ``"sync"`` (serial), ``"threads"``, ``"processes"`` or a ``distributed.Client``
         (start its worker processes with :data:`lunarmap.matching.parallel.WORKER_ENVIRON`,
@@ -154,7 +159,10 @@ def find_tiepoints(images: Mapping[str, xr.DataArray | NDArray], sensors: Mappin
     Returns
     -------
     xarray.Dataset
-        The tie-point table.
+        The tie-point table, one row per image observation (dimension ``observation``): ``point_id``,
+        ``image_id`` (index into the ``image`` coordinate, the image names), ``line``, ``sample``
+        (pixels, CSM convention), ``sigma_line``, ``sigma_sample`` (pixels, from least-squares
+        matching) and ``correlation``; :func:`lunarmap.build_block` takes it as it is.
     """
     if hasattr(scheduler, "compute") and hasattr(scheduler, "scatter"):  # a distributed.Client
         # In-memory pixels go to the workers once, by scatter, instead of inside the task graph

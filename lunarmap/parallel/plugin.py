@@ -16,7 +16,7 @@ from distributed.diagnostics.plugin import WorkerPlugin
 
 from ..spice import KernelSet, clear, ensure_loaded, loaded_kernel_set
 
-__all__ = ["SpiceKernelPlugin", "register_kernels"]
+__all__ = ["SpiceKernelPlugin", "register_kernels", "DaskLogsToFile", "dask_logs_to_file"]
 
 
 class SpiceKernelPlugin(WorkerPlugin):
@@ -51,3 +51,68 @@ def register_kernels(client: Any, kernel_set: KernelSet | str) -> SpiceKernelPlu
     plugin = SpiceKernelPlugin(kset)
     client.register_plugin(plugin)
     return plugin
+
+
+def dask_logs_to_file(path: str) -> list[tuple[Any, list[Any], int]]:
+    """Send the ``distributed`` loggers of this process to the file ``path`` instead of the terminal.
+
+    Returns what :func:`restore_dask_logs` needs to put the former handlers back.
+    """
+    import logging
+
+    handler = logging.FileHandler(path)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(process)d %(name)s %(levelname)s %(message)s"))
+    saved = []
+    names = ["distributed"] + [n for n in logging.root.manager.loggerDict
+                               if n.startswith(("distributed.", "tornado", "bokeh"))]
+    for name in names:
+        log = logging.getLogger(name)
+        streams = [h for h in log.handlers if isinstance(h, logging.StreamHandler)
+                   and not isinstance(h, logging.FileHandler)]
+        if not streams and name != "distributed":
+            continue
+        saved.append((log, list(log.handlers), log.propagate))
+        for h in streams:
+            log.removeHandler(h)
+        log.addHandler(handler)
+    return saved
+
+
+def restore_dask_logs(saved: list[tuple[Any, list[Any], int]]) -> None:
+    """Undo :func:`dask_logs_to_file`."""
+    for log, handlers, propagate in saved:
+        for h in list(log.handlers):
+            if h not in handlers:
+                log.removeHandler(h)
+                h.close()
+        for h in handlers:
+            if h not in log.handlers:
+                log.addHandler(h)
+        log.propagate = propagate
+
+
+class DaskLogsToFile(WorkerPlugin):
+    """On every worker, ``distributed``'s log lines (a failed task's "Compute Failed" block, shutdown
+    notices) go to a file instead of the terminal; the client reports the failure itself.
+
+    Parameters
+    ----------
+    path : str
+        Log file (appended to), on the workers' file system.
+    """
+
+    idempotent = True
+
+    def __init__(self, path: str) -> None:
+        self.path = str(path)
+        self.name = "lunarmap-dask-logs"
+
+    def setup(self, worker: Any) -> None:
+        import logging
+
+        dask_logs_to_file(self.path)
+        # lunarmap's progress lines (adjustment iterations, QC rounds) reach the client
+        # (Client.forward_logging("lunarmap")) only if the worker's logger lets them through
+        log = logging.getLogger("lunarmap")
+        if log.level == logging.NOTSET or log.level > logging.INFO:
+            log.setLevel(logging.INFO)

@@ -39,6 +39,7 @@ low-pass sigma 0.25 m, for 0.5 m pixels), evaluated wherever a ray lands.
 
 from __future__ import annotations
 
+import logging
 import os
 import time
 from dataclasses import dataclass, field
@@ -63,6 +64,8 @@ from .albedo import TiledAlbedo, tiled_albedo
 from .compiled_render import RenderedCube, RenderScene, remove_stale_partials, render_cube
 from .render import render_image
 from .terrain import synthetic_albedo, synthetic_dtm
+
+_log = logging.getLogger(__name__)
 
 __all__ = ["block_scene", "block_cameras", "render_block", "RenderedBlock", "block_check_points", "block_dtm_file",
            "render_block_cubes", "image_seed", "DTM_SPACING_M", "ALBEDO_SPACING_M", "ALBEDO_FEATURE_M", "ALBEDO_BLUR_M",
@@ -270,7 +273,9 @@ def render_block(mission: BlockMission | str | os.PathLike[str], output: str | o
     if write and not out_dir.is_dir():
         raise BlockMissionError(f"output folder {out_dir} does not exist")
     site_of = {n: bm.model.image(n).site for n in sel}
+    t_scene = time.perf_counter()
     scenes = {k: block_scene(bm, k) for k in dict.fromkeys(site_of.values())}
+    _log.info("rendering: scene (DTM and albedo) of %d site(s) built in %.1f s", len(scenes), time.perf_counter() - t_scene)
     samplers = {k: DtmSampler(dtm) for k, (dtm, _) in scenes.items()}
     cams = block_cameras(bm, "truth", sel)
     lazy = {}
@@ -281,7 +286,11 @@ def render_block(mission: BlockMission | str | os.PathLike[str], output: str | o
                                noise_sigma=float(noise_sigma), seed=seed, chunks=chunks,
                                window=_crop_window(cams[n], crop), name=n)
     t0 = time.perf_counter()
-    computed = dask.compute(*lazy.values(), scheduler=scheduler)
+    if isinstance(scheduler, str):
+        with _RenderProgress(len(sel)):
+            computed = dask.compute(*lazy.values(), scheduler=scheduler)
+    else:
+        computed = dask.compute(*lazy.values(), scheduler=scheduler)
     seconds = time.perf_counter() - t0
     images = {}
     for n, img in zip(sel, computed):
@@ -300,6 +309,36 @@ def render_block(mission: BlockMission | str | os.PathLike[str], output: str | o
             paths[f[:-3]] = atomic_write(out_dir / f, lambda tmp, d=dtm: d.to_netcdf(tmp, engine="netcdf4"))
     first = scenes[site_of[sel[0]]]
     return RenderedBlock(images, first[0], first[1], paths, seconds, scenes)
+
+
+class _RenderProgress:
+    """Logs the render's progress (blocks done / total) at most every ``every`` seconds (local schedulers)."""
+
+    def __init__(self, n_images: int, every: float = 3.0) -> None:
+        from dask.callbacks import Callback
+
+        self.n_images, self.every = n_images, every
+        self.done = self.total = 0
+        self.last = self.start = time.perf_counter()
+        self.cb = Callback(start_state=self._start, posttask=self._post)
+
+    def _start(self, dsk: Any, state: Any) -> None:
+        self.total = len(state.get("ready", [])) + len(state.get("waiting", {}))
+
+    def _post(self, key: Any, result: Any, dsk: Any, state: Any, worker_id: Any) -> None:
+        self.done += 1
+        now = time.perf_counter()
+        if now - self.last >= self.every:
+            self.last = now
+            _log.info("rendering %d image(s): %d of %d tasks done, %.0f s", self.n_images, self.done,
+                      max(self.total, self.done), now - self.start)
+
+    def __enter__(self) -> "_RenderProgress":
+        self.cb.__enter__()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.cb.__exit__(*exc)
 
 
 def image_seed(mission: BlockMission | str | os.PathLike[str], name: str) -> int:

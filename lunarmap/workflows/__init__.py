@@ -9,8 +9,8 @@
 
 from .config import ImageSpec, NavigationConfig, RunConfig, config_from_dict, load_config
 from .example import write_example
-from .engine import STAGES, RunResult, build_graph, run
+from .engine import STAGES, RunPlan, RunResult, build_graph, plan, run
 from .store import Store, file_digest, step_key
 
-__all__ = ["run", "RunResult", "RunConfig", "ImageSpec", "NavigationConfig", "load_config", "config_from_dict",
+__all__ = ["run", "plan", "RunPlan", "RunResult", "RunConfig", "ImageSpec", "NavigationConfig", "load_config", "config_from_dict",
            "write_example", "build_graph", "STAGES", "Store", "file_digest", "step_key"]

@@ -20,6 +20,8 @@ Layout (every relative path is taken relative to the configuration file's folder
 
     [points]                         # optional: control and check points measured in the images
     path = "points.nc"               # a lunarmap control network (lunarmap.adjust.write_network)
+    other_images = "error"           # measures of images not in [[images]]: "error" (checked before any
+                                     # work) or "ignore" (dropped; a point left with too few rays too)
 
     [rpc]
     enabled = true
@@ -64,7 +66,9 @@ Layout (every relative path is taken relative to the configuration file's folder
     html = true
 
 An unknown section or key, a value of the wrong type and a file that does not exist are
-:class:`~lunarmap.errors.ConfigError`\\ s naming the key and the configuration file.
+:class:`~lunarmap.errors.ConfigError`\\ s naming the key and the configuration file; what needs the
+files' content (the points file's images, the datum, variance estimation) is checked by
+:func:`lunarmap.workflows.checks.check_before_work` before any step runs.
 """
 
 from __future__ import annotations
@@ -144,6 +148,7 @@ class RunConfig:
     name: str = ""
     dtm: Path | None = None
     points: Path | None = None
+    points_other_images: str = "error"
     rpc_enabled: bool = True
     rpc_height_range: tuple[float, float] = (-300.0, 300.0)
     cell: int = 48
@@ -171,7 +176,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], bool]]] = {
     "run": {"output": (str, True), "name": (str, False)},
     "kernels": {"metakernel": (str, True)},
     "dtm": {"path": (str, True)},
-    "points": {"path": (str, True)},
+    "points": {"path": (str, True), "other_images": (str, False)},
     "rpc": {"enabled": (bool, False), "height_range": (list, False)},
     "tiepoints": {"cell": (int, False), "search": ((int, float), False), "min_overlap": ((int, float), False),
                   "max_points": (int, False)},
@@ -328,6 +333,9 @@ def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",
         for im in images:
             per_group[im.group or im.name] = per_group.get(im.group or im.name, 0) + 1
         qc = _qc_config(adj["qc"], nav is not None, max(per_group.values()), src)
+    other_images = d.get("points", {}).get("other_images", "error")
+    if other_images not in ("error", "ignore"):
+        raise ConfigError(f"{src}: points.other_images must be 'error' or 'ignore', got {other_images!r}")
     height_range = _numbers(rpc["height_range"], 2, "rpc.height_range", src) if "height_range" in rpc \
         else (-300.0, 300.0)
     if not height_range[1] > height_range[0]:
@@ -354,6 +362,7 @@ def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",
         images=tuple(images), name=str(run.get("name", "")),
         dtm=_path(base_p, d["dtm"]["path"], "dtm.path", src) if "dtm" in d else None,
         points=_path(base_p, d["points"]["path"], "points.path", src) if "points" in d else None,
+        points_other_images=other_images,
         rpc_enabled=bool(rpc.get("enabled", True)), rpc_height_range=height_range, cell=cell, search=search,
         min_overlap=min_overlap, max_points=max_points or None, degree=degree, estimate_tie_variance=bool(adj.get("estimate_tie_variance", True)),
         ftol=float(adj.get("ftol", 1e-10)), navigation=nav, qc=qc, html=bool(rep.get("html", True)))

@@ -46,7 +46,7 @@ from .steps import (Done, ImageDone, ImageJob, MatchJob, adjust_step, adjusted_r
                     kernels_step, match_batch, provenance, read_pixels, tiepoints_step)
 from .store import Store, _entry_digests, file_digest, files_digest, load_digests, save_digests, step_key
 
-__all__ = ["RunResult", "run", "build_graph", "STAGES"]
+__all__ = ["RunResult", "RunPlan", "run", "plan", "build_graph", "STAGES"]
 
 _log = logging.getLogger(__name__)
 
@@ -112,6 +112,8 @@ class _Graph:
     pairs: list[tuple[str, str]]
     apart: int = 0                   # pairs left out because their footprints cannot meet
     outputs: dict[str, list[Path]] = field(default_factory=dict)   # dask key -> files the task writes
+    jobs: dict[str, Any] = field(default_factory=dict)             # image -> its ImageJob (keys of its steps)
+    heights: tuple[float, ...] = ()                                # of the footprints
 
     def computes(self) -> bool:
         """Whether any task has an output missing from the store (else every task only reads it)."""
@@ -205,6 +207,7 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
         heights = [min(heights[0], float(np.nanmin(dtm_values))), max(heights[1], float(np.nanmax(dtm_values)))]
     rpc_range = cfg.rpc_height_range if cfg.rpc_enabled else None
     image: dict[str, Any] = {}
+    jobs_of: dict[str, ImageJob] = {}
     isd_key: dict[str, str] = {}
     pix: dict[str, str] = {}
     for im in cfg.images:
@@ -225,10 +228,11 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
                store.path("pyramid", job.pyramid_key, "nc"), store.path("detect", job.detect_key, "npz")]
         if job.rpc_key is not None:
             out.append(store.path("rpc", job.rpc_key, "nc"))
+        jobs_of[im.name] = job
         image[im.name] = node("image", isd_key[im.name], image_steps, store, job, str(cfg.metakernel),
                               tuple(heights), rpc_range, params.detect, params.match.pyramid_levels, sat, out=out)
     if images_only:
-        return _Graph(tasks, stage_of, names, [], outputs=outputs)
+        return _Graph(tasks, stage_of, names, [], outputs=outputs, jobs=jobs_of, heights=tuple(heights))
     candidates = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
     apart = 0
     if done is not None and all(isinstance(v, ImageDone) for v in image.values()):
@@ -275,10 +279,11 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
     points = str(cfg.points) if cfg.points is not None else None
     qc = None if cfg.qc is None or not cfg.qc.steps else {**asdict(cfg.qc), "steps": list(cfg.qc.steps)}
     k_adj = step_key("adjust", [cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, groups, names]
-                     + ([qc] if qc is not None else []),
+                     + ([qc] if qc is not None else [])
+                     + ([cfg.points_other_images] if points and cfg.points_other_images != "error" else []),
                      [isd_key[n] for n in names] + [k_tie, file_digest(cfg.points) if points else ""])
     adj = node("adjust", k_adj, adjust_step, store, k_adj, names, groups, [rec[n]["isd"] for n in names], ties,
-               points, cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, attrs, qc,
+               points, cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, attrs, qc, cfg.points_other_images,
                out=[store.path("adjust", k_adj)])
     k_ker = step_key("kernels", None, [k_adj, kernels_digest])
     node("kernels", k_ker, kernels_step, store, k_ker, names, adj, [rec[n]["isd"] for n in names],
@@ -290,7 +295,107 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
             node("rpc_adjusted", step_key("rpc_adjusted_batch", None, [k for k, _ in group]), adjusted_rpc_batch,
                  store, group, adj, cfg.rpc_height_range,
                  out=[store.path("rpc_adjusted", k, "nc") for k, _ in group])
-    return _Graph(tasks, stage_of, names, pairs, apart, outputs)
+    return _Graph(tasks, stage_of, names, pairs, apart, outputs, jobs_of, tuple(heights))
+
+
+@dataclass
+class RunPlan:
+    """What :func:`run` would do (``lunarmap run --dry-run``), found without running any step.
+
+    Attributes
+    ----------
+    config : RunConfig
+    images : list of str
+    pairs : list of (str, str)
+        The candidate pairs: those whose footprints can meet (each gets a match step).
+    pairs_apart : int
+        Pairs left out because their footprints cannot meet.
+    steps : dict stage -> (int, int)
+        Per stage of :data:`STAGES`: tasks to compute, tasks whose outputs are all in the store (reused).
+    points : lunarmap.workflows.checks.PointsCheck
+        The points file's usable control and check points.
+    """
+
+    config: RunConfig
+    images: list[str]
+    pairs: list[tuple[str, str]]
+    pairs_apart: int
+    steps: dict[str, tuple[int, int]]
+    points: Any = None
+
+    def text(self) -> str:
+        """The plan as printed by ``lunarmap run --dry-run``."""
+        c = self.config
+        n = len(self.images)
+        lines = [f"run {c.name or c.source} -> {c.output}",
+                 f"  images ({n}): {', '.join(self.images)}",
+                 f"  candidate pairs: {len(self.pairs)} of {n * (n - 1) // 2} (footprints can meet; "
+                 f"{self.pairs_apart} apart): {', '.join(f'{a}/{b}' for a, b in self.pairs[:8])}"
+                 + (", ..." if len(self.pairs) > 8 else "")]
+        if c.points is not None and self.points is not None:
+            p = self.points
+            lines.append(f"  points {c.points}: {p.control} control, {p.check} check points"
+                         + (f" ({p.dropped_measures} measures in other images dropped)" if p.dropped_measures else ""))
+        lines.append("  steps (tasks to compute / reused from the store):")
+        lines += [f"    {s:<13} {k:4d} compute {r:4d} reuse" for s, (k, r) in self.steps.items() if k or r]
+        lines.append("nothing was run (--dry-run)")
+        return "\n".join(lines)
+
+
+def plan(config: RunConfig | str | os.PathLike[str]) -> RunPlan:
+    """The plan of a run: its checks (:func:`lunarmap.workflows.checks.check_before_work`), images,
+    candidate pairs and steps to compute or reuse; nothing is computed or written.
+
+    Footprints come from the store where it has them, else from each image's label and kernels (one
+    SPICE pass per image, in this process; no pixel is read).
+
+    Parameters
+    ----------
+    config : RunConfig or path-like
+
+    Returns
+    -------
+    RunPlan
+
+    Raises
+    ------
+    ConfigError
+        As :func:`run` before any step.
+    """
+    from ..camera.factory import camera_from_isd
+    from ..errors import NoOverlapError
+    from ..evaluate.footprint import candidate_pairs, footprint
+    from ..orientation.drivers import image_support
+    from .checks import check_before_work
+    from .steps import Done, ImageDone, footprint_step
+
+    cfg = config if isinstance(config, RunConfig) else load_config(config)
+    found = check_before_work(cfg)
+    store = Store(cfg.output / "store")
+    first = build_graph(cfg, store, images_only=True)
+    feet: dict[str, Any] = {}
+    done: dict[str, Any] = {}
+    spec = {im.name: im for im in cfg.images}
+    for name, job in first.jobs.items():
+        isd = Done("isd", job.isd_key, name, str(store.path("isd", job.isd_key, "json")), False)
+        if store.has("footprint", job.footprint_key, "npz"):
+            feet[name] = footprint_step(store, job.footprint_key, isd, first.heights)
+        else:
+            cam = camera_from_isd(image_support(spec[name].label, cfg.metakernel))
+            try:
+                feet[name] = [footprint(cam, height=h, per_side=8, name=name) for h in first.heights]
+            except NoOverlapError:
+                feet[name] = None
+        records = [isd] + [Done(s, k, name, "", False) for s, k in (("pyramid", job.pyramid_key),
+                                                                     ("detect", job.detect_key))]
+        done[f"image-{job.isd_key}"] = ImageDone(records, feet[name])
+    graph = build_graph(cfg, store, done=done)
+    steps = {s: [0, 0] for s in STAGES}
+    for g in (first, graph):
+        for k, st in g.stage_of.items():
+            steps[st][0 if any(not p.exists() for p in g.outputs.get(k, [])) else 1] += 1
+    return RunPlan(cfg, list(first.names), list(graph.pairs), graph.apart,
+                   {s: (a, b) for s, (a, b) in steps.items()}, found)
 
 
 def tiepoint_params(cfg: RunConfig) -> Any:
@@ -314,6 +419,15 @@ class _Progress:
         self.stage_seconds: dict[str, float] = {}
         self.every = every
         self._last = 0.0
+        self.seen = 0.0           # perf_counter of the last lunarmap log line (any step's, forwarded or not)
+
+    def heartbeat(self) -> None:
+        """Log the progress if nothing was logged for ``every`` seconds (tasks that run long)."""
+        now = time.perf_counter() - self.start
+        if now - max(self._last, self.seen - self.start) > self.every:
+            self._last = now
+            _log.info("progress at %.0f s: %s", now, "  ".join(f"{s} {self.done[s]}/{self.total[s]}" for s in STAGES
+                                                               if self.total[s]))
 
     def add(self, stage_of: dict[str, str]) -> None:
         """Count the tasks of another phase."""
@@ -337,14 +451,48 @@ class _Progress:
         if self.done[stage] == self.total[stage]:
             self.stage_seconds[stage] = now
             _log.info("%-9s %4d/%-4d done at %6.1f s", stage, self.done[stage], self.total[stage], now)
-        elif now - self._last > self.every:
             self._last = now
-            _log.info("progress: %s", "  ".join(f"{s} {self.done[s]}/{self.total[s]}" for s in STAGES
-                                                  if self.total[s]))
+        else:
+            self.heartbeat()
+
+
+class _Heartbeat(logging.Handler):
+    """A thread that calls ``progress.heartbeat()`` every second while a phase computes; as a handler of the
+    ``lunarmap`` logger it notes when any line was logged, so that it only fills silences."""
+
+    def __init__(self, progress: _Progress) -> None:
+        import threading
+
+        super().__init__(logging.INFO)
+        self.progress = progress
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._loop, name="lunarmap-progress", daemon=True)
+
+    def _loop(self) -> None:
+        while not self.stop.wait(1.0):
+            self.progress.heartbeat()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.progress.seen = time.perf_counter()
+
+    def __enter__(self) -> "_Heartbeat":
+        logging.getLogger("lunarmap").addHandler(self)
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.stop.set()
+        self.thread.join()
+        logging.getLogger("lunarmap").removeHandler(self)
 
 
 def _execute(graph: _Graph, scheduler: Any, progress: _Progress) -> dict[str, Any]:
     """Compute every task of ``graph``; returns dask key -> result."""
+    with _Heartbeat(progress):
+        return _compute(graph, scheduler, progress)
+
+
+def _compute(graph: _Graph, scheduler: Any, progress: _Progress) -> dict[str, Any]:
     keys = list(graph.tasks)
     results: dict[str, Any] = {}
     delayed = [graph.tasks[k] for k in keys]
@@ -526,9 +674,13 @@ def _run_locked(cfg: RunConfig, scheduler: Any, workers: int, report: bool | Non
     if root.level == logging.NOTSET or root.level > logging.INFO:
         root.setLevel(logging.INFO)
     client = cluster = None
+    dask_logs: list[Any] = []
     digests = store.root / "digests.json"
     load_digests(digests)
     try:
+        from .checks import check_before_work
+
+        check_before_work(cfg)     # what the steps would find late in the files, before any of them runs
         first = build_graph(cfg, store, images_only=True)
         _log.info("run %s: %d images, %d per-image tasks -> %s", cfg.name or cfg.source, len(first.names),
                   len(first.tasks), cfg.output)
@@ -550,6 +702,11 @@ def _run_locked(cfg: RunConfig, scheduler: Any, workers: int, report: bool | Non
                 return "sync"
             if scheduler is None or (isinstance(scheduler, str) and not local):
                 if client is None:
+                    from ..parallel.plugin import dask_logs_to_file
+
+                    # distributed's own lines (a failed task's "Compute Failed" block, shutdown notices) go
+                    # to <run>/dask.log: the terminal gets lunarmap's one error line
+                    dask_logs.extend(dask_logs_to_file(str(cfg.output / "dask.log")))
                     client, cluster = _client(scheduler, workers, cfg)
                     _log.info("dask dashboard: %s", client.dashboard_link)
                 return client
@@ -567,6 +724,7 @@ def _run_locked(cfg: RunConfig, scheduler: Any, workers: int, report: bool | Non
         if client is not None:
             peaks.update(client.run(peak_rss_mb))
         save_digests(digests)
+        _log.info("copying the outputs to %s", cfg.output / "outputs")
         with disk_guard(cfg.output / "outputs", "the run's outputs"):
             files, summary = _export(cfg, graph, progress.records)
         summary["tasks"] = len(first.tasks) + len(graph.tasks)
@@ -583,16 +741,29 @@ def _run_locked(cfg: RunConfig, scheduler: Any, workers: int, report: bool | Non
             if result.computed == 0 and page.exists() and stamp.exists() and stamp.read_text() == adjusted:
                 result.report = page
             else:
+                t_report = time.perf_counter()
+                _log.info("writing the report (plots, tables)")
                 result.report = write_report(result)
                 stamp.write_text(adjusted)
+                _log.info("report %s written in %.1f s", result.report, time.perf_counter() - t_report)
         counts = result.counts()
         _log.info("run finished: %s", ", ".join(f"{s} {c} computed / {k} reused" for s, (c, k) in counts.items()))
         return result
+    except BaseException as err:
+        # the details go to run.log only (the command line prints one line)
+        handler.handle(logging.LogRecord(_log.name, logging.ERROR, __file__, 0, "run failed: %s: %s",
+                                         (type(err).__name__, err), (type(err), err, err.__traceback__)))
+        if isinstance(err, LunarmapError):
+            err.run_log = cfg.output / "run.log"     # type: ignore[attr-defined]  # named by the command line
+        raise
     finally:
         if client is not None:
-            client.close()
-        if cluster is not None:
-            cluster.close()
+            _log.info("stopping the local dask cluster" if cluster is not None else "closing the dask client")
+        _shutdown(client, cluster)
+        if dask_logs:
+            from ..parallel.plugin import restore_dask_logs
+
+            restore_dask_logs(dask_logs)
         root.removeHandler(handler)
         handler.close()
 
@@ -618,6 +789,20 @@ def check_run(config: RunConfig | str | os.PathLike[str]) -> tuple[int, list[str
     return n, problems
 
 
+def _shutdown(client: Any, cluster: Any) -> None:
+    """Close the client, then the cluster (its workers first), each with a timeout."""
+    if client is not None:
+        try:
+            client.close(timeout=10)
+        except Exception as err:          # a scheduler already gone: nothing left to close
+            _log.debug("client close: %s", err)
+    if cluster is not None:
+        try:
+            cluster.close(timeout=30)
+        except Exception as err:
+            _log.debug("cluster close: %s", err)
+
+
 def _client(address: Any, workers: int, cfg: RunConfig) -> tuple[Any, Any]:
     from distributed import Client, LocalCluster
 
@@ -636,5 +821,9 @@ def _client(address: Any, workers: int, cfg: RunConfig) -> tuple[Any, Any]:
         except (OSError, TimeoutError) as err:
             raise ConfigError(f"no dask scheduler at {address}: {err}") from None
     register_kernels(client, str(cfg.metakernel))
+    from ..parallel.plugin import DaskLogsToFile
+
+    client.register_plugin(DaskLogsToFile(str(cfg.output / "dask.log")))
+    client.forward_logging("lunarmap", level=logging.INFO)     # steps' progress lines, on the client's handlers
     return client, cluster
 

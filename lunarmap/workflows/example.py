@@ -246,6 +246,7 @@ def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = F
         bm = open_block_mission(mdir)
         parts.reuse("mission")
     else:
+        _log.info("example: writing the mission's SPICE kernels (truth and navigation) and labels in %s", mdir)
         bm = write_block_mission(mdir, seed=seed, sites=sites, site_half_width_s=site_half_width_s, layout=layout,
                                  **extra)
         parts.done("mission", mission_digest, [mdir / f for f in _mission_files(bm)])
@@ -264,6 +265,7 @@ def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = F
     if parts.fresh("points", points_digest):
         parts.reuse("points")
     else:
+        _log.info("example: measuring %d control and %d check points in the images", n_control, n_check)
         net = (_full_size_points(bm, use, n_control, n_check, control_sigma, sigma_px, seed) if full_size
                else _block_points(bm, use, n_control, n_check, control_sigma, sigma_px, seed))
         from ..adjust import write_network
@@ -304,6 +306,8 @@ def _write_block_images(bm: Any, use: list[str], parts: _Parts, mission_digest: 
     dtm_stale = not parts.fresh("dtm", dtm_digest)
     if stale or dtm_stale:
         # the DTMs come with any rendering; a stale DTM alone re-renders the first image of its site
+        _log.info("example: rendering %d image(s) and the DTM through the truth cameras",
+                  len(stale) or 1)
         render_block(bm, names=stale or [next(n for n in use if bm.model.image(n).site == sites[0])], supersample=2)
         for n in stale:
             parts.done(f"image:{n}", digests[n], [bm.folder / f"{n}.nc"])
@@ -361,8 +365,11 @@ def _block_points(bm: Any, use: list[str], n_control: int, n_check: int, control
         # one site: the networks of the one-site example (seeds, point ids) exactly
         extra = 0 if n_sites == 1 else 1000 * site
         prefix = "" if n_sites == 1 else f"s{site}_"
+        _log.info("example: %d control points of site %d (visible in its %d images, on the true DTM)", n_control,
+                  site, len(here))
         control = block_check_points(bm, n_control, sigma_px=sigma_px, seed=seed + 11 + extra, cameras=truth,
                                      names=here)
+        _log.info("example: %d check points of site %d", n_check, site)
         check = block_check_points(bm, n_check, sigma_px=sigma_px, seed=seed + 12 + extra, cameras=truth, names=here)
         nets += [_points_network(control, "control", f"{prefix}C", control_sigma, rng),
                  _points_network(check, "check", f"{prefix}K")]

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import json
+import logging
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -23,6 +24,8 @@ from ..blas import single_threaded_blas
 from ..camera.geodesy import MOON_GEOGRAPHIC_CRS
 from ..errors import LunarmapError, WorkflowError
 from .store import Store
+
+_log = logging.getLogger(__name__)
 
 __all__ = ["Done", "ImageJob", "ImageDone", "MatchJob", "image_steps", "isd_step", "rpc_step", "pyramid_step",
            "detect_step", "footprint_step", "match_batch", "match_step", "tiepoints_step", "adjust_step",
@@ -557,13 +560,15 @@ def tiepoints_step(store: Store, key: str, names: Sequence[str], pairs: Sequence
 def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[str], isds: Sequence[Done],
                 ties: Done, points: str | None, degree: int, navigation: dict[str, Any] | None,
                 estimate_tie_variance: bool, ftol: float, attrs: dict[str, Any],
-                qc: dict[str, Any] | None = None) -> Done:
+                qc: dict[str, Any] | None = None, other_images: str = "error") -> Done:
     """Adjust the block on the images' rigorous cameras; write the results as netCDF and adjusted ISDs.
 
     With ``qc`` (the fields of :class:`~lunarmap.workflows.config.QCConfig`) the adjustment is quality
     controlled (:func:`lunarmap.adjust.quality_control`, image groups = the images' navigation groups); the
     report is written as ``qc.nc`` and ``qc.txt``. The tie points' variance factor is then estimated on
-    what quality control kept, unless its ``variance`` step estimated every group's.
+    what quality control kept, unless its ``variance`` step estimated every group's. With
+    ``other_images="ignore"`` the points' measures in images not in ``names`` are dropped
+    (:func:`lunarmap.workflows.checks.restrict_network`).
     """
     t = time.perf_counter()
     if store.has("adjust", key):
@@ -583,13 +588,21 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
             cams = {n: _camera(d) for n, d in zip(names, isds)}
             net = network_from_tiepoints(read_tiepoints(ties.path))
             if points is not None:
-                net = merge_networks(net, read_network(points))
+                pts_net = read_network(points)
+                if other_images == "ignore":
+                    from .checks import restrict_network
+
+                    pts_net = restrict_network(pts_net, names)[0]
+                net = merge_networks(net, pts_net)
             spec = None
             if navigation is not None:
                 spec = NavigationSpec(orbit={n: g or n for n, g in zip(names, groups)}, **navigation)
             block = build_block(cams, net, degree=degree, navigation=spec)
+            _log.info("adjust: block of %d images, %d points, %d image observations%s", len(names),
+                      block.problem.n_points, block.problem.obs.n,
+                      f", quality control {' -> '.join(qc['steps'])}" if qc is not None and qc["steps"] else "")
             x0 = block.problem.points.copy()
-            opts = SolverOptions(ftol=ftol)
+            opts = SolverOptions(ftol=ftol, progress=2.0)    # an iteration line at most every 2 s
             qc_out = None
             problem = block.problem
             if qc is not None and qc["steps"]:
@@ -601,10 +614,15 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
                 est = None
                 result = qc_out.result
             else:
-                est = estimate_image_variances(problem, groups_obs, np.array([tie_variance, False]), opts,
+                # without control or check points the tie points are the only group (a second, empty
+                # group would have no redundancy)
+                both = bool(np.any(groups_obs == 1))
+                est = estimate_image_variances(problem, groups_obs, np.array([tie_variance, False][:1 + both]), opts,
                                                rounds=5 if tie_variance else 1)
                 result = est.result
             res = BlockResult(Block(block.names, block.model, block.network, result.problem, block.navigation), result)
+            _log.info("adjust: sigma0 %.4f after %d iterations; writing adjusted ISDs, posterior precision, "
+                      "check points", res.sigma0, int(res.result.iterations))
             adjusted_isds = adjusted_image_support(res, {n: ImageSupport.read_json(d.path) for n, d in zip(names, isds)})
         except LunarmapError as err:
             raise _fail("adjust", "", err) from None
@@ -639,6 +657,9 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
             resid = res.result.residuals_dataset()
             resid["image_name"] = ("obs", np.asarray(names, dtype=object)[resid["image"].values])
             resid["point_type"] = ("obs", block.network.point_type[resid["point"].values].astype(object))
+            resid["point_id"] = ("obs", block.network.point_id[resid["point"].values].astype(object))
+            # the measured image coordinates (line, sample), e.g. to compare with a simulation's truth
+            resid["observed"] = (("obs", "coord"), np.asarray(res.result.problem.obs.xy, float))
             if qc_out is not None:
                 resid["qc_removed"] = ("obs", ~qc_out.ledger.active)
                 qc_out.report.write(folder / "qc.nc")

@@ -52,6 +52,8 @@ per adjustment would take too many rounds; the paper's way is ``"one"``.
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -62,6 +64,8 @@ from .ledger import Decision, Ledger
 
 __all__ = ["w_tests", "snooping_step"]
 
+
+_log = logging.getLogger(__name__)
 
 #: a leave-one-out fit (resection or intersection) is decisive when it fits the other observations within this many limits and
 #: the next best leave-out's RMS is this many times larger
@@ -620,6 +624,10 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
             continue
         wi = np.abs(tests["image"])
         wi_obs = np.nanmax(np.where(np.isnan(wi), -1.0, wi), axis=1)
+        _log.info("quality control: Baarda round %d (%s): largest |w| %.2f (limit %.1f), %d image observations "
+                  "failing, %d removed so far", rnd, "linearised" if linear else "non-linear",
+                  float(wi_obs.max()) if wi_obs.size else 0.0, limit, int(np.sum(wi_obs > limit)),
+                  int(np.sum(~ledger.active)))
         cands: list[tuple[float, str, int, int]] = []      # (|w|, kind, a, b)
         if wi_obs.size and wi_obs.max() > limit:
             if per_round == "one":

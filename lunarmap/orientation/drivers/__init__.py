@@ -35,7 +35,7 @@ __all__ = ["Driver", "LroNacDriver", "LroNacPds3Driver", "ClementineUvvisDriver"
            "LunarOrbiterHighDriver", "ApolloMetricDriver", "LroWacDriver", "LroMiniRfDriver",
            "ClementineDriver", "Chandrayaan2OhrcDriver", "Chandrayaan2TmcDriver", "Chandrayaan1M3Driver",
            "Chandrayaan1M3Pds3Driver", "KaguyaMiDriver", "LunarOrbiterMediumDriver",
-           "DRIVERS", "UNSUPPORTED_LABELS", "driver_for", "image_support"]
+           "DRIVERS", "UNSUPPORTED_LABELS", "driver_for", "image_support", "radar_label"]
 
 #: Drivers in the order they are asked; the generic IK-configured driver is last.
 DRIVERS: list[type[Driver]] = [LroNacDriver, LroNacPds3Driver, ClementineDriver, KaguyaTcDriver,
@@ -50,6 +50,27 @@ def _kaguya_tc_isis(label: Label) -> bool:
         str(inst.get("InstrumentId", "")).upper() in ("TC1", "TC2")
 
 
+_RADAR_WORDS = ("MINI-RF", "MINIRF", "MRFLRO", "MINI_RF", "SAR", "RADAR", "DFSAR")
+
+
+def radar_label(label: Label) -> str | None:
+    """The instrument named by a radar (SAR) label, or ``None``: a radar is not a camera, and lunarmap
+    models one radar (LRO Mini-RF from its ISIS cube label, :class:`LroMiniRfDriver`)."""
+    names = [str(label.find(k) or "") for k in ("InstrumentId", "INSTRUMENT_ID", "InstrumentName", "INSTRUMENT_NAME")]
+    upper = " ".join(names).upper().replace("(", " ").replace(")", " ")
+    if any(w in upper.split() or w in upper.replace(" ", "") for w in _RADAR_WORDS[:4]) or \
+            any(w in upper.split() for w in _RADAR_WORDS[4:]) or \
+            any(label.find(k) is not None for k in ("RangeCoefficientSet", "LookDirection", "RANGE_COEFFICIENT_SET")):
+        return next((n for n in names if n), "radar")
+    return None
+
+
+def _radar_message(label: Label, source: str) -> str:
+    return (f"label {source}: {radar_label(label)!r} is a radar (SAR) instrument, not a camera; lunarmap supports "
+            "LRO Mini-RF from its ISIS cube label (mrf2isis + spiceinit) only: other radar labels are not supported "
+            "yet")
+
+
 #: Labels of cameras lunarmap models from another label kind only. They are refused by
 #: name after the specific drivers and before :class:`GenericDriver`, which would
 #: otherwise claim them (they are ISIS labels with a NAIF frame code) and fail deep
@@ -58,6 +79,8 @@ UNSUPPORTED_LABELS: list[tuple[Callable[[Label], bool], str]] = [
     (_kaguya_tc_isis, "Kaguya TC is supported from its PDS3 level-2B0 label only (the ISIS label's start time "
                       "and detector keywords are not read); give the PDS3 label"),
 ]
+#: Radar labels that no specific driver claimed are named as radars (not "no focal length in the IK").
+UNSUPPORTED_LABELS.append((lambda lab: radar_label(lab) is not None, "RADAR"))
 
 
 def driver_for(label: Label, source: str = "") -> Driver:
@@ -76,9 +99,12 @@ def driver_for(label: Label, source: str = "") -> Driver:
         if cls is GenericDriver:
             for refuses, why in UNSUPPORTED_LABELS:
                 if refuses(label):
-                    raise UnknownInstrumentError(f"label {source}: {why}")
+                    raise UnknownInstrumentError(_radar_message(label, source) if why == "RADAR"
+                                                 else f"label {source}: {why}")
         if cls.matches(label):
             return cls(label, source)
+    if radar_label(label) is not None:
+        raise UnknownInstrumentError(_radar_message(label, source))
     inst = label.find("InstrumentId") or label.find("INSTRUMENT_ID") or "?"
     host = label.find("SpacecraftName") or label.find("MISSION_NAME") or "?"
     raise UnknownInstrumentError(f"no lunarmap driver for instrument {inst!r} of {host!r} in label {source}; "
@@ -94,6 +120,20 @@ def image_support(label: str | os.PathLike[str] | Label, kernel_set: KernelSet |
         ISIS cube / label file or PDS3 label, or an already parsed label.
     kernel_set : KernelSet or path-like
         A kernel set or the path of a meta-kernel.
+
+    Returns
+    -------
+    ImageSupport
+        The image's support data: times, positions, velocities, attitudes, instrument model
+        (write it with ``write_json``; build its camera with :func:`lunarmap.camera_from_isd`).
+
+    Raises
+    ------
+    UnknownInstrumentError
+        A label of an instrument lunarmap has no driver for (a radar such as Mini-RF is named as
+        such: not supported yet).
+    MissingKernelError
+        A kernel the instrument needs is not in the kernel set.
     """
     source = "" if isinstance(label, Label) else os.fspath(label)
     lab = label if isinstance(label, Label) else load_label(label)
