@@ -7,7 +7,7 @@ TEST_WORKERS ?= 2
 VENV   ?= .venv
 BIN     = $(VENV)/bin
 
-.PHONY: demo test bench fuzz install clean
+.PHONY: demo test bench fuzz install clean wheel-check docs docs-clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -31,5 +31,14 @@ bench: install
 fuzz: install
 	$(BIN)/python bench/fuzz.py
 
+# sdist + wheel, the wheel installed into a fresh venv outside the source tree, the CLI run there
+# (minutes: not part of .ci/run; see .ci/wheel_check.py)
+$(VENV)/.installed-dev: pyproject.toml | $(VENV)/.installed
+	$(BIN)/python -m pip install --quiet -e ".[test,bench,docs,dev]"
+	touch $@
+
+wheel-check: $(VENV)/.installed-dev
+	$(BIN)/python .ci/wheel_check.py
+
 clean:
-	rm -rf $(VENV) demo_output .pytest_cache
+	rm -rf $(VENV) demo_output .pytest_cache dist build docs/_build

@@ -15,6 +15,8 @@
     writes the embedded example (a synthetic mission with rendered images and perturbed navigation;
     with ``--full-size`` eight LRO-NAC-like images of 52,224 x 5,064 pixels as ISIS cubes) and runs it;
     prints accuracy against the simulation's truth. What is already written is not written again.
+``lunarmap --version``
+    prints the installed version (``lunarmap.__version__``) and exits.
 ``lunarmap ranger-kernels TABLE -o DIR [--focal-length MM --format MM --pixel MM]``
     write a flight-parameter table (Ranger paper) as a SPICE kernel set with labels.
 """
@@ -175,11 +177,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+
     parser = argparse.ArgumentParser(
         prog="lunarmap", formatter_class=argparse.RawDescriptionHelpFormatter,
         description="lunarmap: planetary photogrammetry for the Moon, from SPICE kernels and image labels to "
                     "adjusted orientations.",
         epilog="commands:\n" + plain_text(__doc__.split("\n\n", 1)[1]).split("\n\nfrom __future__")[0])
+    parser.add_argument("--version", action="version", version=f"lunarmap {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("isd", help="write the image support data (ALE/CSM ISD JSON) of an image")
     p.add_argument("label", help="ISIS cube or label, or PDS3 label")

@@ -169,7 +169,7 @@ class ControlNetwork:
         to_model : callable, optional
             ``to_model(image_index (n,), line_sample (n, 2)) -> (n, 2)``: converts the measures into the
             image model's coordinates (pixels).  Default: ``(line, sample)`` unchanged, the convention of
-            :class:`~lunarmap.adjust.rfm_affine.AffineRFMModel`.  The sigmas are passed on in
+            :class:`~lunarmap.adjust.sensors.SensorImageModel`.  The sigmas are passed on in
             (line, sample) order, so the converter must keep that axis order.
         """
         xy = self.line_sample if to_model is None else np.asarray(to_model(self.measure_image, self.line_sample))
