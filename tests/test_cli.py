@@ -63,7 +63,8 @@ def test_isd_command_fails_during_sampling_and_writes_nothing(sim_mission, tmp_p
 
 
 def test_isd_command_interrupted_while_writing_leaves_no_file(sim_mission, tmp_path, monkeypatch, capsys):
-    """The write itself fails half-way (disk full): neither a partial ISD nor a temporary file remains."""
+    """The write itself fails half-way (disk full): one named error line, exit status 2, neither a partial ISD nor a
+    temporary file remains."""
     import lunarmap.orientation.isd as isd_module
 
     def half_then_fail(data, fh, **kw):
@@ -73,9 +74,11 @@ def test_isd_command_interrupted_while_writing_leaves_no_file(sim_mission, tmp_p
     monkeypatch.setattr(isd_module.json, "dump", half_then_fail)
     out_dir = tmp_path / "out"
     out_dir.mkdir()
-    with pytest.raises(OSError, match="No space left"):
-        main(["isd", str(sim_mission.parent / "sim_frame_a.lbl"), "--kernels", str(sim_mission),
-              "-o", str(out_dir / "a.json")])
+    status = main(["isd", str(sim_mission.parent / "sim_frame_a.lbl"), "--kernels", str(sim_mission),
+                   "-o", str(out_dir / "a.json")])
+    err = capsys.readouterr().err
+    assert status == 2
+    assert "DiskFullError" in err and "a.json" in err and "no space left" in err.lower()
     assert list(out_dir.iterdir()) == []
 
 
