@@ -326,3 +326,28 @@ def test_status_codes_say_why_a_point_did_not_match(pair10) -> None:
     assert block.sum() >= 6
     assert np.mean(pm.status[block] == STATUS["outlier"]) >= 0.6, counts(pm.status[block])
     assert np.mean(pm.status[~block] == STATUS["outlier"]) <= 0.06, counts(pm.status[~block])
+
+
+def test_a_shared_dtm_sampler_matches_as_the_dataarray_does_without_copies(pair10, nac_scene, tmp_path) -> None:
+    """A run's DTM reaches the matcher as one :class:`DtmSampler` per process (``workflows.steps._dtm_sampler``):
+    the same matches as with the DataArray (whose cameras each build a sampler of their own: a copy of the
+    grid per camera), and the cameras keep no copy."""
+    from lunarmap.camera import DtmSampler
+    from lunarmap.workflows.steps import _dtm_sampler
+
+    c1, c2, i1, i2, _ = pair10
+    dtm = nac_scene[0]
+    path = tmp_path / "dtm.nc"
+    dtm.to_netcdf(path)
+    sampler, mean_h = _dtm_sampler(path)
+    assert _dtm_sampler(path)[0] is sampler                      # one per process, not one per pair
+    assert mean_h == pytest.approx(float(np.nanmean(dtm.values)), abs=1e-9)
+    pts = foerstner(i1, cell=20, per_cell=1)
+    p = MatchParams(search=12.0)
+    a = match_points(i1, i2, c1, c2, pts.line, pts.sample, height=dtm, params=p)
+    c1.__dict__["_dtm_cache"] = c2.__dict__["_dtm_cache"] = None
+    b = match_points(i1, i2, c1, c2, pts.line, pts.sample, height=sampler, params=p)
+    assert isinstance(sampler, DtmSampler) and c1._dtm_cache is None and c2._dtm_cache is None
+    assert a.ok.sum() >= 20 and np.array_equal(a.ok, b.ok)
+    np.testing.assert_allclose(b.line2[b.ok], a.line2[a.ok], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(b.sample2[b.ok], a.sample2[a.ok], rtol=0, atol=1e-9)
