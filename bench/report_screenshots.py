@@ -21,7 +21,7 @@ from pathlib import Path
 
 WIDTH = 1200
 SECTIONS = {"top": ("verdict", -160, 1150), "footprints": ("map", -10, 860), "qc_table": ("qc", -10, 1000),
-            "check_points": ("check_table", -10, 760)}
+            "check_points": ("check_table", -10, 760), "timings": ("timings", -10, 420)}
 
 _PROBE = """<script>
 window.addEventListener('load', () => {

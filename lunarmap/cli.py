@@ -102,9 +102,10 @@ def _scheduler(args: argparse.Namespace) -> Any:
 def _cmd_demo(args: argparse.Namespace) -> int:
     import logging
 
+    handler = _progress_to_stderr()
+    logging.getLogger("lunarmap").info("example in %s: loading lunarmap (numpy, dask, SPICE)", args.output)
     from .demo import run_demo
 
-    handler = _progress_to_stderr()
     try:
         report = run_demo(args.output, seed=args.seed, quick=args.quick, scheduler=_scheduler(args),
                           workers=args.workers, full_size=args.full_size)

@@ -487,7 +487,7 @@ def test_no_points_and_no_navigation_is_a_datum_error_before_any_step(example):
 
 def test_without_points_the_run_estimates_the_tie_variance_from_the_tie_points(example, serial):
     """No [points] (optional): the default estimate_tie_variance has only the tie-point group to estimate."""
-    text = serial.config.source.read_text().replace('output = "serial"', 'output = "nopoints"')
+    text = example.read_text().replace('output = "run"', 'output = "nopoints"')
     text = _without(_without(text, "[points]", "[rpc]"), "[adjust.qc]", "[report]")
     cfg = example.parent / "nopoints.toml"
     cfg.write_text(text)
@@ -503,7 +503,8 @@ def test_without_points_the_run_estimates_the_tie_variance_from_the_tie_points(e
 def test_dry_run_prints_the_plan_and_computes_nothing(example, serial, capsys):
     from lunarmap.cli import main
 
-    assert main(["run", str(serial.config.source), "--dry-run"]) == 0
+    # (other tests rewrite serial.toml: the serial run's configuration is written again)
+    assert main(["run", str(_config(example, "serial")), "--dry-run"]) == 0
     out = capsys.readouterr().out
     assert f"images ({len(NAMES)}): " + ", ".join(NAMES) in out
     assert "candidate pairs: 6 of 6" in out and "nothing was run" in out

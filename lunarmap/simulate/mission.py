@@ -494,7 +494,11 @@ def block_check_points(mission: BlockMission | str | os.PathLike[str], n: int = 
     lat0, lon0 = np.radians(st.latitude_deg), st.longitude_deg
     kept: list[Array] = []
     n_kept = 0
+    t_log = time.perf_counter()
     for _ in range(200):
+        if time.perf_counter() - t_log > 3.0:
+            t_log = time.perf_counter()
+            _log.info("points: %d of %d found visible in every image", n_kept, n)
         east, north = rng.uniform(-half, half, (2, max(64, 4 * n)))
         lat = st.latitude_deg + np.degrees(north / MOON_RADIUS)
         lon = lon0 + np.degrees(east / (MOON_RADIUS * np.cos(lat0)))
@@ -504,6 +508,9 @@ def block_check_points(mission: BlockMission | str | os.PathLike[str], n: int = 
         la, lo = np.radians(lat), np.radians(lon)
         xyz = r[:, None] * np.stack([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)], axis=-1)
         for name in sel:
+            if time.perf_counter() - t_log > 3.0:
+                t_log = time.perf_counter()
+                _log.info("points: %d of %d found; testing visibility in %s", n_kept, n, name)
             cam = cams[name]
             ln, sm = cam.ground_to_image(xyz)
             nl, ns = cam.interior.n_lines, cam.interior.n_samples

@@ -13,11 +13,15 @@ import base64
 import html
 import io
 import json
+import logging
+import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import xarray as xr
+
+_log = logging.getLogger(__name__)
 
 __all__ = ["write_report", "qc_text", "verdict", "QC_COLUMNS", "CHECK_FRAME"]
 
@@ -250,6 +254,14 @@ def write_report(result: Any, qc_truth: dict[str, Any] | None = None) -> Path:
     if (adj / "check_points.nc").exists():
         with xr.open_dataset(adj / "check_points.nc") as ds:
             check = ds.load()
+    t_last = [time.perf_counter()]
+
+    def step(what: str) -> None:      # a progress line at most every 2 s
+        if time.perf_counter() - t_last[0] > 2.0:
+            t_last[0] = time.perf_counter()
+            _log.info("report: %s", what)
+
+    step("footprints of the images")
     feet = _footprints(result)
     images: list[tuple[str, str, bytes]] = []
     names = list(summary.get("images", []))
@@ -293,7 +305,9 @@ def write_report(result: Any, qc_truth: dict[str, Any] | None = None) -> Path:
         ax.set_aspect(1.0 / max(np.cos(np.radians(np.nanmean(pts["lat"].values))), 0.05))
         ax.set_title("footprints at height 0 (numbered as in the legend) and adjusted points")
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+    step("footprint map")
     images.append(("map", "Footprints and points", _figure(map_plot, 9.4, 6.2)))
+    step("residual and check-point plots")
 
     v = res["residual"].values
     img = res["image"].values
@@ -342,7 +356,9 @@ def write_report(result: Any, qc_truth: dict[str, Any] | None = None) -> Path:
                 ax.barh(k, ends[k] - starts[k], left=starts[k], color="tab:blue")
             else:
                 ax.barh(k, 0.0, left=starts[k])
-                ax.text(starts[k], k, "  reused from the store", va="center", fontsize=8, color="0.35")
+                # x in axes fractions: the note stays inside the plot whatever the time scale
+                ax.text(0.01, k, "reused from the store (not computed in this run)", va="center", fontsize=8,
+                        color="0.35", transform=ax.get_yaxis_transform())
         ax.set_yticks(range(len(stages)), stages)
         ax.invert_yaxis()
         ax.set_xlabel("wall time since the start of the graph (s)")
@@ -350,6 +366,7 @@ def write_report(result: Any, qc_truth: dict[str, Any] | None = None) -> Path:
     if result.stage_seconds:
         images.append(("timings", "Stage timings", _figure(timing_plot, 6.4, 3.2)))
 
+    step("tables")
     for name, _, png in images:
         (folder / f"{name}.png").write_bytes(png)
     ptype = res["point_type"].values.astype(str)
@@ -436,6 +453,7 @@ def write_report(result: Any, qc_truth: dict[str, Any] | None = None) -> Path:
         if "point_id" in res:
             pid = dict(zip(res["point"].values.tolist(), res["point_id"].values.astype(str).tolist()))
         qrows = []
+        step("QC decisions table")
         if dec is not None:
             for k in range(dec.sizes["decision"]):
                 image = int(dec["image"].values[k])
