@@ -73,9 +73,11 @@ def test_isd_command_interrupted_while_writing_leaves_no_file(sim_mission, tmp_p
     monkeypatch.setattr(isd_module.json, "dump", half_then_fail)
     out_dir = tmp_path / "out"
     out_dir.mkdir()
-    with pytest.raises(OSError, match="No space left"):
-        main(["isd", str(sim_mission.parent / "sim_frame_a.lbl"), "--kernels", str(sim_mission),
-              "-o", str(out_dir / "a.json")])
+    # issue 28: a named DiskFullError (an OSError) naming the file, reported by the CLI like any lunarmap error
+    rc = main(["isd", str(sim_mission.parent / "sim_frame_a.lbl"), "--kernels", str(sim_mission),
+               "-o", str(out_dir / "a.json")])
+    err = capsys.readouterr().err
+    assert rc != 0 and "DiskFullError" in err and "No space left" in err and str(out_dir / "a.json") in err
     assert list(out_dir.iterdir()) == []
 
 
