@@ -293,3 +293,18 @@ def test_cube_pointing_table_without_angular_velocities(lro_set, tmp_path):
     ref = camera_from_cube(cube, image_size=(400, 5064))
     xyz = ref.image_to_ground(np.array([200.0]), np.array([2532.0]), 0.0)
     np.testing.assert_allclose(cam.image_to_ground(np.array([200.0]), np.array([2532.0]), 0.0), xyz, atol=1e-3)
+
+
+def test_geotiff_header_declaring_more_pixels_than_the_file_holds():
+    """Found by the issue-28 fuzzing: a 6.5 kB mutated GeoTIFF declaring 59,762 bands of 40 x 40 pixels was
+    read chunk by chunk (GDAL opened once per chunk) for more than 18 minutes; now refused at once."""
+    pytest.importorskip("rasterio")
+    from pathlib import Path
+
+    from lunarmap.io.raster import open_image
+
+    path = Path(__file__).parent / "data" / "fuzz_geotiff_59762_bands.tif"
+    t = time.perf_counter()
+    with pytest.raises(CubeFormatError, match="59762 band"):
+        open_image(path)
+    assert time.perf_counter() - t < 2.0
