@@ -75,6 +75,8 @@ def main(argv: list[str] | None = None) -> int:
                                       seed=seed + 1000 * k + j)
                         done[target.name] += n_chunk
                     k += 1
+                    ran = sum(sum(fuzzhelp.COUNTS[t.name].values()) for t in mine)
+                    print(f"{reader:14s} ... {ran} inputs at {time.perf_counter() - t0:.0f} s", flush=True)
             except AssertionError as err:
                 failed = True
                 print(f"{reader:14s} BREACH: {str(err).splitlines()[0]}", flush=True)

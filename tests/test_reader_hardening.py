@@ -265,3 +265,46 @@ def test_lro_summing_that_overflows(lro_set, tmp_path):
     bad.write_text(new)
     with pytest.raises(LabelError, match="summing"):                                        # was OverflowError
         image_support(bad, KernelSet.from_metakernel(next(lro_set.glob("*.tm"))))
+
+
+def test_cube_pointing_table_without_angular_velocities(lro_set, tmp_path):
+    """Found by the issue-28 fuzzing of camera_from_cube: a pointing table whose AV fields are gone took a
+    code path importing a function that does not exist (raw ImportError); now the camera is built."""
+    from lunarmap.camera.cube import camera_from_cube
+
+    cube = lro_set / "M103595705LE.cub"
+    if not cube.is_file():
+        pytest.skip("no LRO NAC cube in the shared set")
+    data = cube.read_bytes()
+    end = data.index(b"\nEnd\n")
+    head = data[:end]
+    import re
+
+    # the InstrumentPointing table's AV fields renamed (same length: the binary records are unchanged)
+    start = head.index(b"Name        = InstrumentPointing") if b"Name        = InstrumentPointing" in head else \
+        re.search(rb"Name\s*=\s*InstrumentPointing", head).start()
+    stop = head.index(b"End_Object", start)
+    block = head[start:stop]
+    new_block = re.sub(rb"Name(\s*)= AV([123])", rb"Name\1= XV\2", block)
+    assert new_block != block
+    bad = tmp_path / "no_av.cub"
+    bad.write_bytes(head[:start] + new_block + head[stop:] + data[end:])
+    cam = camera_from_cube(bad, image_size=(400, 5064))
+    ref = camera_from_cube(cube, image_size=(400, 5064))
+    xyz = ref.image_to_ground(np.array([200.0]), np.array([2532.0]), 0.0)
+    np.testing.assert_allclose(cam.image_to_ground(np.array([200.0]), np.array([2532.0]), 0.0), xyz, atol=1e-3)
+
+
+def test_geotiff_header_declaring_more_pixels_than_the_file_holds():
+    """Found by the issue-28 fuzzing: a 6.5 kB mutated GeoTIFF declaring 59,762 bands of 40 x 40 pixels was
+    read chunk by chunk (GDAL opened once per chunk) for more than 18 minutes; now refused at once."""
+    pytest.importorskip("rasterio")
+    from pathlib import Path
+
+    from lunarmap.io.raster import open_image
+
+    path = Path(__file__).parent / "data" / "fuzz_geotiff_59762_bands.tif"
+    t = time.perf_counter()
+    with pytest.raises(CubeFormatError, match="59762 band"):
+        open_image(path)
+    assert time.perf_counter() - t < 2.0

@@ -82,6 +82,13 @@ def baseline(example):
     return res, _figures(res.folder)
 
 
+def _run_tolerating_damage(cfg, **kw):
+    """A run that may find entries a kill or a full disk left without their checksum (warned, recomputed)."""
+    with warnings.catch_warnings(record=True):
+        warnings.simplefilter("always", StoreDamageWarning)
+        return run(cfg, scheduler="sync", report=False, **kw)
+
+
 def _copy_run(baseline, dst: Path) -> Path:
     shutil.copytree(baseline[0].folder, dst)
     return dst
@@ -182,16 +189,13 @@ def test_a_run_killed_at_random_points_resumes_to_identical_results(example, bas
     folder = tmp_path / "killed"
     cfg = _config(example, "killed", example.read_text().replace('output = "run"', f'output = "{folder}"'))
     cmd = [sys.executable, "-m", "lunarmap", "run", str(cfg), "--serial"]
-    for delay in sorted(rng.uniform(1.5, 6.0, 2)):
+    for delay in sorted(rng.uniform(2.0, 6.0, 2 if FULL else 1)):
         p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
         time.sleep(delay)
         if p.poll() is None:
             os.killpg(p.pid, signal.SIGKILL)
         p.wait()
-        from lunarmap.workflows.store import verify_store
-
-        assert verify_store(folder / "store")[1] == [] or True   # an entry without checksum is allowed here
-    res = run(cfg, scheduler="sync", report=False)
+    res = _run_tolerating_damage(cfg)
     _same(_figures(folder), baseline[1])
     # nothing half-written: every entry verifies, no temporary name is left
     from lunarmap.workflows.store import verify_store
@@ -262,7 +266,7 @@ def test_full_disk_is_named_up_front_and_mid_run_leaves_nothing_half_written(exa
         # more space: the run resumes and ends as an undamaged run does
         subprocess.run(["mount", "-o", "remount,size=32m", str(mnt)], check=True)
         monkeypatch.undo()
-        run(cfg, scheduler="sync", report=False)
+        _run_tolerating_damage(cfg)
         _same(_figures(mnt / "run"), baseline[1])
     finally:
         _umount(mnt)
@@ -271,7 +275,16 @@ def test_full_disk_is_named_up_front_and_mid_run_leaves_nothing_half_written(exa
 # --- concurrent runs and the lock -----------------------------------------------------------------
 
 def test_second_run_in_one_folder_stops_or_waits_and_the_work_is_done_once(example, baseline, tmp_path):
-    folder = tmp_path / "concurrent"
+    # the first run has the block left to compute (adjustment, kernels, adjusted RFMs): seconds, not a minute
+    folder = _copy_run(baseline, tmp_path / "concurrent")
+    from lunarmap.workflows.store import remove_entry
+
+    for step in ("adjust", "kernels", "rpc_adjusted"):
+        for e in list((folder / "store" / step).iterdir()):
+            if not e.name.endswith(".sha256"):
+                remove_entry(e)
+    shutil.rmtree(folder / "outputs")
+    (folder / "run.log").unlink()
     cfg = _config(example, "concurrent", example.read_text().replace('output = "run"', f'output = "{folder}"'))
     first = subprocess.Popen([sys.executable, "-m", "lunarmap", "run", str(cfg), "--serial"],
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -326,6 +339,15 @@ def test_renamed_reordered_and_edited_inputs_recompute_exactly_what_depends_on_t
     renamed = text
     for n in NAMES:
         renamed = renamed.replace(f'name = "{n}"', f'name = "x_{n}"')
+    # the control and check points name their images too: the same points under the new names
+    from dataclasses import replace
+
+    from lunarmap.adjust.network import read_network, write_network
+
+    net = read_network(example.parent / "points.nc")
+    write_network(replace(net, image_id=np.array([f"x_{n}" for n in net.image_id])), tmp_path / "points_x.nc")
+    renamed = renamed.replace('path = "points.nc"', f'path = "{tmp_path / "points_x.nc"}"')
+    assert renamed.count("x_") >= len(NAMES) + 0 and str(tmp_path / "points_x.nc") in renamed
     res = rerun(renamed, "keys_renamed")
     c = res.counts()
     assert all(c[s] == (0, len(NAMES)) for s in ("isd", "pyramid", "detect")) and c["match"][0] == 0

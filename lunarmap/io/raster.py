@@ -304,6 +304,13 @@ def _open_gdal(path: str, chunks: Any) -> xr.DataArray:
         raise CubeFormatError(f"{path}: GDAL cannot read it ({type(err).__name__}: {err})") from None
     if min(shape) < 1:
         raise CubeFormatError(f"{path}: GDAL reads it as {shape[0]} band(s) of {shape[1]} x {shape[2]} pixels")
+    # a damaged header can declare far more pixels than the file could hold even compressed (issue 28: a
+    # 6.5 kB GeoTIFF of 59,762 bands, read chunk by chunk for ever): 1,024 x the file's size + 64 MB at most
+    declared = shape[0] * shape[1] * shape[2] * dtype.itemsize
+    if declared > 1024 * os.path.getsize(path) + (64 << 20):
+        raise CubeFormatError(f"{path}: its header declares {shape[0]} band(s) of {shape[1]} x {shape[2]} "
+                              f"{dtype} pixels ({declared} bytes), more than a {os.path.getsize(path)}-byte file "
+                              "can hold (damaged header)")
     raw = da.from_array(_GdalReader(path, shape, dtype), chunks=_chunks(chunks, *shape, dtype.itemsize), asarray=True,
                         name=f"gdal-{abs(hash((path, os.path.getmtime(path)))):x}", meta=np.empty((0, 0, 0), dtype))
     out_type = np.float64 if dtype.itemsize >= 4 and dtype.kind in "iu" or dtype.itemsize == 8 else np.float32

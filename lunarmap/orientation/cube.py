@@ -333,9 +333,10 @@ def _densify(d: dict[str, Any], position: dict[str, Any], pointing: dict[str, An
     q = np.asarray(pointing["quaternions"])
     av = np.asarray(pointing["angular_velocities"]) if "angular_velocities" in pointing else None
     if av is None:
-        from .isd_reader import _rates_from_samples
-
-        av = _rates_from_samples(tp, q)
+        # a table without AV1..AV3 (a CK without rates): the resampling interpolates the quaternions
+        # without them; they are only written out again (issue 28: this path imported a function that does
+        # not exist, a raw ImportError found by fuzzing)
+        av = np.zeros((tp.size, 3))
     q_new, w_new = _resample_pointing(tp, q, av, epochs)
     p_new, v_new = _resample_states(tx, np.asarray(position["positions"]), np.asarray(position["velocities"]), epochs)
     pointing.update(ephemeris_times=epochs.tolist(), quaternions=q_new.tolist(), angular_velocities=w_new.tolist())
