@@ -68,6 +68,12 @@ nb_execution_raise_on_error = True      # a cell that raises fails the build
 nb_execution_show_tb = True
 nb_merge_streams = True
 os.environ.setdefault("LUNARMAP_SHARED_KERNELS", str(ROOT.parent / "shared" / "data" / "kernels"))
+#: tutorials that read the shared kernel sets: shown unexecuted (not failed) where those are absent
+SHARED_TUTORIALS = ["tutorials/label_to_rpc.md", "tutorials/isis_network.md"]
+if not (Path(os.environ["LUNARMAP_SHARED_KERNELS"]) / "lro_nac_M103595705LE").is_dir():
+    nb_execution_excludepatterns = SHARED_TUTORIALS
+    print(f"lunarmap docs: shared kernels absent ({os.environ['LUNARMAP_SHARED_KERNELS']}): "
+          f"not executing {', '.join(SHARED_TUTORIALS)}")
 os.environ.setdefault("MPLBACKEND", "agg")
 
 # -- HTML --------------------------------------------------------------------------------------
