@@ -37,6 +37,12 @@ $(VENV)/.installed-dev: pyproject.toml | $(VENV)/.installed
 	$(BIN)/python -m pip install --quiet -e ".[test,bench,docs,dev]"
 	touch $@
 
+# the documentation site: warnings (broken references, docstring errors, a failing notebook cell) fail it
+docs: $(VENV)/.installed-dev
+	rm -rf docs/_build docs/jupyter_execute
+	$(BIN)/sphinx-build -W --keep-going -n -b html docs docs/_build/html
+	@echo "open docs/_build/html/index.html"
+
 wheel-check: $(VENV)/.installed-dev
 	$(BIN)/python .ci/wheel_check.py
 

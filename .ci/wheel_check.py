@@ -126,10 +126,11 @@ def main() -> int:
         empty.mkdir()
         out, dt = _run([str(exe), "run", "--example", "--quick", "--serial"], empty, env, "lunarmap run --example")
         assert (empty / "demo_output").is_dir()
-        tail = [line for line in out.splitlines() if "check points" in line.lower()]
+        lines = out.splitlines()
+        at = max((i for i, line in enumerate(lines) if "check points" in line.lower()), default=len(lines) - 6)
         print(f"lunarmap run --example --quick --serial (empty folder): {dt:.0f} s")
-        for line in tail[-3:]:
-            print("   ", line.strip())
+        for line in lines[at:at + 6]:
+            print("   ", line.rstrip())
     finally:
         if os.environ.get("KEEP") == "1":
             print(f"kept {tmp}")

@@ -62,7 +62,10 @@ nitpick_ignore_regex = [
 # -- MyST / notebooks --------------------------------------------------------------------------
 myst_enable_extensions = ["colon_fence", "dollarmath", "deflist"]
 myst_heading_anchors = 3
-nb_execution_mode = "force"             # every build executes every tutorial
+# every build from a clean tree (make docs removes docs/_build) executes every tutorial; a rebuild
+# re-executes only the tutorials whose code changed (jupyter-cache in docs/_build/.jupyter_cache)
+nb_execution_mode = "cache"
+nb_execution_cache_path = str(Path(__file__).parent / "_build" / ".jupyter_cache")
 nb_execution_timeout = 600
 nb_execution_raise_on_error = True      # a cell that raises fails the build
 nb_execution_show_tb = True
