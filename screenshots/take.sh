@@ -3,10 +3,10 @@
 # an API page, an executed tutorial. Usage: bash screenshots/take.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
-html=docs/_build/html
+html=${HTML:-docs/_build/html}
 shot() {  # name page height
   chromium --headless=new --no-sandbox --disable-gpu --hide-scrollbars --window-size=1400,"$3" \
-    --screenshot="screenshots/$1.png" "file://$PWD/$html/$2" 2>/dev/null
+    --screenshot="screenshots/$1.png" "file://$(realpath $html)/$2" 2>/dev/null
   echo "screenshots/$1.png <- $2"
 }
 shot landing index.html 1100
