@@ -78,7 +78,7 @@ if not (Path(os.environ["LUNARMAP_SHARED_KERNELS"]) / "lro_nac_M103595705LE").is
     nb_execution_excludepatterns += SHARED_TUTORIALS
     print(f"lunarmap docs: shared kernels absent ({os.environ['LUNARMAP_SHARED_KERNELS']}): "
           f"not executing {', '.join(SHARED_TUTORIALS)}")
-os.environ.setdefault("MPLBACKEND", "agg")
+# (no MPLBACKEND here: the notebook kernels draw with matplotlib's inline backend)
 
 # -- HTML --------------------------------------------------------------------------------------
 html_theme = "pydata_sphinx_theme"
