@@ -13,4 +13,5 @@ shot landing index.html 1100
 shot guide-adjustment guide/adjustment.html 1400
 shot api-camera api/lunarmap.camera.html 1400
 shot tutorial-label-to-rpc tutorials/label_to_rpc.html 2600
+shot tutorial-lroc-selection tutorials/lroc_selection.html 3600
 shot tutorial-example-block tutorials/example_block.html 3000
