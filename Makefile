@@ -7,7 +7,7 @@ TEST_WORKERS ?= 2
 VENV   ?= .venv
 BIN     = $(VENV)/bin
 
-.PHONY: demo test bench fuzz install clean wheel-check docs docs-clean
+.PHONY: demo test bench fuzz install clean wheel-check docs lint
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -36,6 +36,17 @@ fuzz: install
 $(VENV)/.installed-dev: pyproject.toml | $(VENV)/.installed
 	$(BIN)/python -m pip install --quiet -e ".[test,bench,docs,dev]"
 	touch $@
+
+# lint + import order of the library (ruff; configuration and the reasons for its ignores in pyproject.toml)
+lint: install
+	$(BIN)/python -m ruff --version >/dev/null 2>&1 || $(BIN)/python -m pip install --quiet "ruff>=0.6,<0.18"
+	$(BIN)/python -m ruff check lunarmap
+
+# the documentation site: warnings (broken references, docstring errors, a failing notebook cell) fail it
+docs: $(VENV)/.installed-dev
+	rm -rf docs/_build docs/jupyter_execute
+	$(BIN)/sphinx-build -W --keep-going -n -b html docs docs/_build/html
+	@echo "open docs/_build/html/index.html"
 
 wheel-check: $(VENV)/.installed-dev
 	$(BIN)/python .ci/wheel_check.py

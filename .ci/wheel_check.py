@@ -124,12 +124,17 @@ def main() -> int:
 
         empty = tmp / "empty"
         empty.mkdir()
-        out, dt = _run([str(exe), "run", "--example", "--quick", "--serial"], empty, env, "lunarmap run --example")
+        t0 = time.perf_counter()
+        proc = subprocess.run([str(exe), "run", "--example", "--quick", "--serial"], cwd=empty, env=env,
+                              capture_output=True, text=True)
+        dt = time.perf_counter() - t0
+        if proc.returncode != 0:
+            sys.stderr.write(proc.stdout[-4000:] + proc.stderr[-4000:])
+            raise SystemExit(f"wheel check: lunarmap run --example failed (exit {proc.returncode}) after {dt:.0f} s")
         assert (empty / "demo_output").is_dir()
-        tail = [line for line in out.splitlines() if "check points" in line.lower()]
-        print(f"lunarmap run --example --quick --serial (empty folder): {dt:.0f} s")
-        for line in tail[-3:]:
-            print("   ", line.strip())
+        print(f"lunarmap run --example --quick --serial (empty folder): {dt:.0f} s; its report (last lines):")
+        for line in proc.stdout.strip().splitlines()[-12:]:
+            print("   ", line.rstrip())
     finally:
         if os.environ.get("KEEP") == "1":
             print(f"kept {tmp}")

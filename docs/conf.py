@@ -62,13 +62,23 @@ nitpick_ignore_regex = [
 # -- MyST / notebooks --------------------------------------------------------------------------
 myst_enable_extensions = ["colon_fence", "dollarmath", "deflist"]
 myst_heading_anchors = 3
-nb_execution_mode = "force"             # every build executes every tutorial
-nb_execution_timeout = 600
+# every build from a clean tree (make docs removes docs/_build) executes every tutorial; a rebuild
+# re-executes only the tutorials whose code changed (jupyter-cache in docs/_build/.jupyter_cache)
+nb_execution_mode = "cache"
+nb_execution_cache_path = str(Path(__file__).parent / "_build" / ".jupyter_cache")
+nb_execution_timeout = 1800     # per cell; the shared 2-core machine runs several jobs at once
 nb_execution_raise_on_error = True      # a cell that raises fails the build
 nb_execution_show_tb = True
 nb_merge_streams = True
 os.environ.setdefault("LUNARMAP_SHARED_KERNELS", str(ROOT.parent / "shared" / "data" / "kernels"))
-os.environ.setdefault("MPLBACKEND", "agg")
+#: tutorials that read the shared kernel sets: shown unexecuted (not failed) where those are absent
+SHARED_TUTORIALS = ["tutorials/label_to_rpc.md", "tutorials/isis_network.md"]
+nb_execution_excludepatterns: list[str] = [p for p in os.environ.get("LUNARMAP_DOCS_NO_EXECUTE", "").split(",") if p]
+if not (Path(os.environ["LUNARMAP_SHARED_KERNELS"]) / "lro_nac_M103595705LE").is_dir():
+    nb_execution_excludepatterns += SHARED_TUTORIALS
+    print(f"lunarmap docs: shared kernels absent ({os.environ['LUNARMAP_SHARED_KERNELS']}): "
+          f"not executing {', '.join(SHARED_TUTORIALS)}")
+# (no MPLBACKEND here: the notebook kernels draw with matplotlib's inline backend)
 
 # -- HTML --------------------------------------------------------------------------------------
 html_theme = "pydata_sphinx_theme"

@@ -41,9 +41,7 @@ from __future__ import annotations
 
 import importlib
 import logging
-from typing import Any
-
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from . import errors
 from .errors import LunarmapError

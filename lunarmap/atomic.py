@@ -8,13 +8,12 @@ target is either the old file or the complete new one, and the temporary file is
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import shutil
 import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
-
-import errno
-import shutil
 
 from .errors import DiskError, DiskFullError, DiskWriteError, InvalidInputError
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from docutils import nodes
 from sphinx.util.nodes import make_refnode
 
 _CACHE: dict[str, Any] = {}

@@ -27,20 +27,25 @@ from ..errors import (
 from .bal import BALData, bal_to_problem, problem_to_bal_cameras, read_bal, write_bal
 from .block import Block, BlockResult, NavigationSpec, build_block, navigation_observations, solve_block
 from .collinearity import FrameModel, frame_jacobians, project_frame
-from .export import AdjustedOrientation, adjusted_image_support, write_adjusted
 from .control_points import lonlat_covariance_to_xyz, lonlat_priors
+from .export import AdjustedOrientation, adjusted_image_support, write_adjusted
 from .factor import available_backends, factorize
 from .intersection import IntersectionResult, intersect_points
 from .navigation import NavigationObservations
-from .network import (ControlNetwork, merge_networks, network_from_tiepoints, read_network, write_network)
+from .network import ControlNetwork, merge_networks, network_from_tiepoints, read_network, write_network
 from .problem import BundleProblem, ImageModel, ImageObservations, PointPriors, ReducedTerm
+from .qc import QCOptions, QCReport, QCResult, quality_control
 from .result import AdjustmentResult
 from .sensors import SensorImageModel
 from .solver import AdjustmentState, SolverOptions, solve
-from .variance import (ObservationGroups, VarianceComponents, estimate_variance_components, observation_groups,
-                       variance_component_covariance)
+from .variance import (
+    ObservationGroups,
+    VarianceComponents,
+    estimate_variance_components,
+    observation_groups,
+    variance_component_covariance,
+)
 from .weights import ScaledTerm, Weights, reweighted_problem
-from .qc import QCOptions, QCReport, QCResult, quality_control
 
 __all__ = [
     "Block", "BlockResult", "NavigationSpec", "build_block", "solve_block", "navigation_observations",

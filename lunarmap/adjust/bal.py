@@ -22,8 +22,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..atomic import atomic_write
-from .collinearity import FrameModel
 from ..errors import AdjustmentInputError
+from .collinearity import FrameModel
 from .problem import BundleProblem, ImageObservations, PointPriors
 from .rotation import matrix_to_rotvec, rotate, rotvec_to_matrix
 

@@ -16,9 +16,8 @@ Backends (chosen by name, ``"auto"`` picks the first available):
 
 from __future__ import annotations
 
-from typing import Callable
-
 import threading
+from typing import Callable
 
 import numpy as np
 import scipy.linalg as sla

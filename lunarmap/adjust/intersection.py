@@ -96,7 +96,7 @@ def intersect_points(model, cam_params: NDArray, cam_idx, pt_idx, xy, sigma=1.0,
                                        f"({n_pt}, 3, 3), got {Xp.shape} and {W.shape}")
         Xp = np.where(np.isfinite(Xp), Xp, 0.0)
     it = 0
-    for it in range(1, max_iterations + 1):
+    for it in range(1, max_iterations + 1):  # noqa: B007 (the count is reported after the loop)
         x, _, Jp = model.linearize(cam_params, cam_idx, X[pt_idx])
         A = Jp / sig[:, :, None]
         r = (x - xy) / sig

@@ -38,9 +38,9 @@ import numpy as np
 import xarray as xr
 from numpy.typing import NDArray
 
+from ..atomic import atomic_write
 from ..camera.geodesy import xyz_to_lonlat_height
 from ..camera.shape import MOON_RADIUS
-from ..atomic import atomic_write
 from ..errors import NetworkFormatError
 from ..matching.tiepoints import check_tiepoint_table
 from ..ncread import load_netcdf

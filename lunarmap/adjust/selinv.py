@@ -262,7 +262,7 @@ def symbolic_factor(S: sp.spmatrix, node_ptr: NDArray[np.int64], last_nodes: NDA
     for k, (a, b) in enumerate(merged):
         sn_of[a:b] = k
     sn_parent = np.full(len(merged), -1, np.int64)
-    for k, (a, b) in enumerate(merged):
+    for k, (_a, b) in enumerate(merged):
         p = parent[b - 1]
         sn_parent[k] = sn_of[p] if p >= 0 else -1
     perm = np.concatenate([np.arange(node_ptr[v], node_ptr[v + 1]) for v in node_order]).astype(np.int64) \

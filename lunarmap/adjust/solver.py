@@ -38,9 +38,8 @@ from numpy.typing import NDArray
 from ..blas import single_threaded_blas
 from ..errors import AdjustmentDivergedError, DatumDefectError
 from .factor import Factorizer
+from .normal import AdjustmentState, Linearization, Terms, back_substitute, evaluate_cost, linearize, reduced_system
 from .problem import BundleProblem
-from .normal import (AdjustmentState, Linearization, Terms, back_substitute, evaluate_cost, linearize,
-                     reduced_system)
 from .schur import SchurStructure
 
 _log = logging.getLogger(__name__)

@@ -1,6 +1,14 @@
 """Sensor models: the SensorModel protocol, interior orientation, distortion, frame, line-scan and push-frame
 cameras, SAR, their correction parameters."""
 
+from .corrections import (
+    AffineCorrectedSensor,
+    AffineCorrections,
+    FrameCorrections,
+    LineScanCorrections,
+    PushFrameCorrections,
+)
+from .csm import USGSCSM_DISTORTIONS, csm_image_support
 from .distortion import (
     DISTORTION_MODELS,
     Distortion,
@@ -18,7 +26,6 @@ from .distortion_csm import (  # registers usgscsm's transverse, radtan, dawnfc,
     TransverseDistortion,
     fit_transverse,
 )
-from .csm import USGSCSM_DISTORTIONS, csm_image_support
 from .factory import camera_from_isd, camera_from_isd_file, load_camera
 from .frame import FrameCamera, focal_to_image, image_to_focal
 from .geodesy import (
@@ -31,8 +38,6 @@ from .geodesy import (
     xyz_to_lonlat_height,
 )
 from .interior import InteriorOrientation
-from .corrections import (AffineCorrectedSensor, AffineCorrections, FrameCorrections, LineScanCorrections,
-                          PushFrameCorrections)
 from .intersect import DtmSampler, intersect_dtm, intersect_ellipsoid, intersect_sphere
 from .linescan import LineScanCamera, LineTimes
 from .pushframe import FrameletTiming, PushFrameCamera

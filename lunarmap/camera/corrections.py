@@ -466,7 +466,6 @@ class LineScanCorrections:
     def partials(self, params: ArrayLike, xyz: ArrayLike) -> tuple[Array, Array, Array]:
         p = _params(params, self.n_params, "LineScanCorrections")
         X = _xyz(xyz)
-        n = X.shape[0]
         t = self._solve_time(p, X)
         pix, dv, v, M, w, powers = self._geometry(p, X, t, True)
         d_x, d_c, d_w = _eo_partials(dv, v, M, w)

@@ -10,10 +10,9 @@ ALE's), as usgscsm does, without SPICE.
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-
-from typing import TYPE_CHECKING, Any
 
 from ..errors import InvalidInputError, IsdConventionWarning, warn
 from ..orientation.isd import ImageSupport

@@ -14,17 +14,54 @@
 The layering is ``... -> adjust -> evaluate``: evaluate uses the adjustment, never the reverse.
 """
 
-from .checkpoints import (ENU, TRACK, Triangulation, along_track_azimuth, block_check_errors, check_point_errors,
-                          track_basis, triangulate)
-from .combinations import (best_combinations, combination_name, compare_with_exhaustive, evaluate_combination,
-                           evaluate_combinations, progressive_selection, site_network, subset_network)
+from .checkpoints import (
+                          ENU,
+                          TRACK,
+                          Triangulation,
+                          along_track_azimuth,
+                          block_check_errors,
+                          check_point_errors,
+                          track_basis,
+                          triangulate,
+)
+from .combinations import (
+                          best_combinations,
+                          combination_name,
+                          compare_with_exhaustive,
+                          evaluate_combination,
+                          evaluate_combinations,
+                          progressive_selection,
+                          site_network,
+                          subset_network,
+)
 from .footprint import Footprint, Overlap, candidate_pairs, footprint, laea_forward, laea_inverse, overlap, polygon_area
-from .geometry import (ViewGeometry, image_centre_point, image_geometry, pair_geometry, parallax_height_ratio,
-                       shadow_tip_distance, view_geometry)
-from .plots import (plot_error_vs_convergence, plot_footprints, plot_matching_error, plot_pair_quantity,
-                    plot_precision_vs_convergence, plot_precision_vs_images, power_law_fit, save_figure)
-from .theory import (NAC_MATCHING_ERROR, MatchingErrorModel, eq15_precision, fit_matching_error, pair_precision,
-                     simulate_matching_errors)
+from .geometry import (
+                          ViewGeometry,
+                          image_centre_point,
+                          image_geometry,
+                          pair_geometry,
+                          parallax_height_ratio,
+                          shadow_tip_distance,
+                          view_geometry,
+)
+from .plots import (
+                          plot_error_vs_convergence,
+                          plot_footprints,
+                          plot_matching_error,
+                          plot_pair_quantity,
+                          plot_precision_vs_convergence,
+                          plot_precision_vs_images,
+                          power_law_fit,
+                          save_figure,
+)
+from .theory import (
+                          NAC_MATCHING_ERROR,
+                          MatchingErrorModel,
+                          eq15_precision,
+                          fit_matching_error,
+                          pair_precision,
+                          simulate_matching_errors,
+)
 
 __all__ = [
     "Footprint", "Overlap", "footprint", "overlap", "candidate_pairs", "laea_forward", "laea_inverse", "polygon_area",

@@ -113,7 +113,7 @@ def _clip(subject: Array, clip: Array) -> Array:
         edge = b - a
 
         def side(q: Array) -> Array:
-            return edge[0] * (q[..., 1] - a[1]) - edge[1] * (q[..., 0] - a[0])
+            return edge[0] * (q[..., 1] - a[1]) - edge[1] * (q[..., 0] - a[0])  # noqa: B023 (called in this iteration)
 
         inp = out
         s_in = side(inp) >= 0.0

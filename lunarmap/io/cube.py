@@ -781,9 +781,9 @@ def copy_cube_with_tables(source: str | os.PathLike[str], target: str | os.PathL
 
         def swap(mm: re.Match) -> str:
             nonlocal replaced
-            if re.search(rf"^\s*Name\s*=\s*{re.escape(t.name)}\s*$", mm.group(2), re.MULTILINE) and not replaced:
+            if re.search(rf"^\s*Name\s*=\s*{re.escape(t.name)}\s*$", mm.group(2), re.MULTILINE) and not replaced:  # noqa: B023,E501
                 replaced = True
-                return block
+                return block  # noqa: B023 (swap runs in this iteration)
             return mm.group(0)
 
         label = _TABLE_BLOCK.sub(swap, label)

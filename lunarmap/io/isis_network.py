@@ -71,9 +71,23 @@ from ..errors import IsisNetworkFormatError, LabelError
 from ..labels import Label, parse_label
 from ..labels.pvl import label_int
 from . import _protowire as pw
-from .isis_network_data import (APRIORI_SOURCES, ISIS_POINT_TYPES, LABEL_BYTES, MEASURE_TYPES, _COV_INDEX, _FIXED,
-                                _FREE, _NAN_BITS, _PIXEL, _REFERENCE, _columns_for_writing, _factorize, _get,
-                                _image_index, network_dataset)
+from .isis_network_data import (
+    _COV_INDEX,
+    _FIXED,
+    _FREE,
+    _NAN_BITS,
+    _PIXEL,
+    _REFERENCE,
+    APRIORI_SOURCES,
+    ISIS_POINT_TYPES,
+    LABEL_BYTES,
+    MEASURE_TYPES,
+    _columns_for_writing,
+    _factorize,
+    _get,
+    _image_index,
+    network_dataset,
+)
 from .isis_network_pvl import read_pvl_network
 from .pvl_write import format_pvl
 

@@ -18,8 +18,20 @@ import xarray as xr
 from ..atomic import atomic_write
 from ..errors import IsisNetworkFormatError, LabelError
 from ..labels import Label, parse_label
-from .isis_network_data import (APRIORI_SOURCES, ISIS_POINT_TYPES, MEASURE_TYPES, _COV_INDEX, _FIXED, _FREE, _PIXEL,
-                           _REFERENCE, _columns_for_writing, _get, _image_index, network_dataset)
+from .isis_network_data import (
+    _COV_INDEX,
+    _FIXED,
+    _FREE,
+    _PIXEL,
+    _REFERENCE,
+    APRIORI_SOURCES,
+    ISIS_POINT_TYPES,
+    MEASURE_TYPES,
+    _columns_for_writing,
+    _get,
+    _image_index,
+    network_dataset,
+)
 from .pvl_write import Unit, format_pvl
 
 __all__ = ["read_pvl_network", "write_pvl_network", "LOG_TYPES"]

@@ -131,7 +131,7 @@ def write_pyramid(source: WindowSource, path: str | os.PathLike[str], levels: in
                         with np.errstate(invalid="ignore"):
                             a[a >= saturation] = np.nan
                     a[~np.isfinite(a)] = np.nan
-                    for lev, (h, w) in enumerate(shapes, start=1):
+                    for lev, (h, _w) in enumerate(shapes, start=1):
                         a = _down(a)
                         a0 = r0 // 2 ** lev
                         rows = min(a.shape[0], h - a0)

@@ -16,8 +16,7 @@ from dask.sizeof import sizeof
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from ..errors import InvalidInputError, warn
-from ..errors import BlankTileWarning
+from ..errors import BlankTileWarning, InvalidInputError, warn
 
 __all__ = ["foerstner", "InterestPoints", "invalid_mask"]
 

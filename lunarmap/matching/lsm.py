@@ -252,7 +252,6 @@ def _lsm_batch(image1: NDArray, image2: Array, l1: Array, s1: Array, l2: Array, 
     u, w = window_offsets(half)
     u = u.ravel()
     w = w.ravel()
-    npx = u.size
     b = l1.size
     # Forward-additive Gauss-Newton on Eq. (14) itself. An inverse-compositional variant (template
     # Jacobian and Hessian formed once, image 2 resampled without gradients) was tried: each

@@ -80,7 +80,6 @@ _cross_kernel = numba.njit(cache=True)(_cross_py) if numba is not None else None
 
 
 def _cross_numpy(s0: Array, tm: Array) -> Array:
-    t = tm.shape[-1]
     # the python loop over shifts costs more in call overhead than it computes (measured: 830,000
     # einsum calls, 36 % of a 12-s tie-point run of 4 images)
     cross = (_cross_kernel(np.ascontiguousarray(s0), np.ascontiguousarray(tm)) if _cross_kernel is not None

@@ -13,12 +13,11 @@ import numpy as np
 import xarray as xr
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import InvalidInputError, warn
-from ..errors import InvalidPixelsWarning, NoOverlapWarning
+from ..camera.sensor import SensorModel
+from ..errors import InvalidInputError, InvalidPixelsWarning, NoOverlapWarning, warn
 from .interest import invalid_mask
 from .lsm import lsm_match
 from .ncc import ncc_match
-from ..camera.sensor import SensorModel
 from .predict import Prediction, predict_conjugates
 from .pyramid import build_pyramid
 from .resample import _windowed

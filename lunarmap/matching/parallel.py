@@ -35,8 +35,15 @@ from ..errors import InvalidInputError
 from ..rpc.parallel import WORKER_ENVIRON as _RPC_WORKER_ENVIRON
 from .interest import InterestPoints
 from .pairs import PairMatches, as_array
-from .tiepoints import (DetectParams, TiePointParams, assemble_tiepoints, detect_tile, match_pair, merge_points,
-                         tile_windows)
+from .tiepoints import (
+    DetectParams,
+    TiePointParams,
+    assemble_tiepoints,
+    detect_tile,
+    match_pair,
+    merge_points,
+    tile_windows,
+)
 
 __all__ = ["tiepoint_graph", "find_tiepoints", "WORKER_ENVIRON"]
 

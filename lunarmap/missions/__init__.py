@@ -25,8 +25,14 @@ from __future__ import annotations
 from .five_rotations import five_rotations, orientation_angles, photo_to_body, sensor_to_body, tilt_from_ranges
 from .flight_parameters import FlightParameters, flight_parameters_from_orientation, read_flight_parameters
 from .multiray import MultiRayResult, TransferMode, intersect_photos
-from .ranger import (RangerCamera, base_height_ratio, body_fixed_to_paper, paper_to_body_fixed, ranger_cameras,
-                     table_coordinates)
+from .ranger import (
+                     RangerCamera,
+                     base_height_ratio,
+                     body_fixed_to_paper,
+                     paper_to_body_fixed,
+                     ranger_cameras,
+                     table_coordinates,
+)
 from .reseau import ReseauCorrection, ReseauGrid
 
 __all__ = [

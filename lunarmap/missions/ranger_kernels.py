@@ -47,8 +47,16 @@ from ..errors import FlightParameterError, KernelError
 from ..orientation.rotation import align_quaternion_signs, matrix_to_quat
 from ..spice import queries as q
 from ..spice.pool import SPICE_LOCK
-from ..spice.writer import (Append, CkSegment, KernelDate, SpkSegment, loaded_temporarily, write_ck, write_spk,
-                            write_text_kernel)
+from ..spice.writer import (
+    Append,
+    CkSegment,
+    KernelDate,
+    SpkSegment,
+    loaded_temporarily,
+    write_ck,
+    write_spk,
+    write_text_kernel,
+)
 from ..synthetic import textkernels
 from ..synthetic.bodies import moon_state_ssb, sun_state_ssb
 from ..synthetic.labels import isis_label

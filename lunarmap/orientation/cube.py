@@ -43,8 +43,7 @@ from ..io.cube import IsisCube, Table, copy_cube_with_tables
 from ..labels import Label
 from ..labels.pvl import label_int
 from .exterior import ExteriorOrientation
-from .isd import ImageSupport
-from .isd import line_scan_epochs
+from .isd import ImageSupport, line_scan_epochs
 from .isd_reader import EPOCH_MERGE_TOLERANCE, KNOWN_BODY_FRAMES, _resample_pointing, _resample_states
 from .rotation import quat_to_matrix
 

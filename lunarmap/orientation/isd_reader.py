@@ -80,10 +80,9 @@ from scipy.interpolate import CubicHermiteSpline, CubicSpline
 from ..errors import IsdConventionWarning, IsdFormatError, warn
 from .distortion_schema import distortion_block_problem
 from .isd_kinds import PushFrameTiming, SarParameters
-from .rotation import align_quaternion_signs, normalize_quat, quat_to_matrix
+from .rotation import align_quaternion_signs, normalize_quat
 from .rotation_hermite import RotationHermite, quat_exp, quat_log, quat_multiply, rates_from_samples
 from .rotation_table import RotationTable
-
 
 __all__ = ["image_support_fields", "read_isd_document", "SENSOR_MODELS", "EPOCH_MERGE_TOLERANCE",
            "KNOWN_BODY_FRAMES"]

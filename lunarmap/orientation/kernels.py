@@ -89,8 +89,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..atomic import atomic_path
-from ..errors import (InvalidInputError, KernelCoverageError, LunarmapError, MissingClockError,
-                      OrientationConflictError, OrientationKernelError, TrajectoryFitError)
+from ..errors import (
+    InvalidInputError,
+    KernelCoverageError,
+    LunarmapError,
+    MissingClockError,
+    OrientationConflictError,
+    OrientationKernelError,
+    TrajectoryFitError,
+)
 from ..spice import SPICE_LOCK, KernelSet, kernels
 from ..spice import queries as q
 from ..spice.writer import CkSegment, SpkSegment, loaded_temporarily, write_ck, write_spk, write_text_kernel

@@ -9,11 +9,25 @@
 * :func:`fit_many` / :func:`fit_rpc_delayed` -- dask graphs.
 """
 
-from ..errors import (RpcConvergenceError, RpcError, RpcFitError, RpcFormatError, RpcGridError, RpcInputError,
-                         RpcLimbError)
+from ..errors import (
+                         RpcConvergenceError,
+                         RpcError,
+                         RpcFitError,
+                         RpcFormatError,
+                         RpcGridError,
+                         RpcInputError,
+                         RpcLimbError,
+)
 from .fit import FitOptions, FitReport, RpcFit, check_fit, fit_from_grid, fit_rfm, fit_rpc
-from .grid import (DEFAULT_HEIGHT_RANGE, GridNodes, GroundGrid, check_grid_nodes, fit_grid_nodes, height_layers,
-                   rigorous_grid)
+from .grid import (
+                         DEFAULT_HEIGHT_RANGE,
+                         GridNodes,
+                         GroundGrid,
+                         check_grid_nodes,
+                         fit_grid_nodes,
+                         height_layers,
+                         rigorous_grid,
+)
 from .io import GDAL_PIXEL_SHIFT, read_netcdf, read_rpc_txt, rpc_txt_keywords, write_netcdf, write_rpc_txt
 from .model import COORDINATES, POLYNOMIALS, RationalFunctionModel
 from .parallel import fit_many, fit_rpc_delayed, rigorous_grid_delayed

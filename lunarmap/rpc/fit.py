@@ -33,10 +33,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..blas import single_threaded_blas
-from ..errors import RpcFitError, RpcInputError
 from ..camera.sensor import SensorModel
-from .grid import (DEFAULT_HEIGHT_RANGE, GridNodes, GroundGrid, check_grid_nodes, fit_grid_nodes,
-                   height_layers, rigorous_grid)
+from ..errors import RpcFitError, RpcInputError
+from .grid import (
+    DEFAULT_HEIGHT_RANGE,
+    GridNodes,
+    GroundGrid,
+    check_grid_nodes,
+    fit_grid_nodes,
+    height_layers,
+    rigorous_grid,
+)
 from .model import RationalFunctionModel
 from .terms import N_TERMS, rpc_terms
 

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..blas import single_threaded_blas
 from ..camera.geodesy import xyz_to_lonlat_height
 from ..camera.sensor import SensorModel
-from ..blas import single_threaded_blas
 from ..errors import RpcGridError, RpcInputError, RpcLimbError
 
 __all__ = ["GridNodes", "GroundGrid", "height_layers", "fit_grid_nodes", "check_grid_nodes",

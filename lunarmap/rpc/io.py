@@ -32,10 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera.shape import MOON_RADIUS
 from ..atomic import atomic_write
-from ..ncread import load_netcdf
+from ..camera.shape import MOON_RADIUS
 from ..errors import RpcFormatError
+from ..ncread import load_netcdf
 from .model import RationalFunctionModel
 
 __all__ = ["write_netcdf", "read_netcdf", "write_rpc_txt", "read_rpc_txt", "rpc_txt_keywords",

@@ -35,9 +35,9 @@ import dask
 import numpy as np
 from dask.delayed import Delayed
 
+from ..camera.sensor import SensorModel
 from ..errors import RpcInputError
 from .fit import FitOptions, RpcFit, fit_from_grid, fit_rpc
-from ..camera.sensor import SensorModel
 from .grid import GridNodes, GroundGrid, check_grid_nodes, fit_grid_nodes, height_layers, rigorous_grid
 
 __all__ = ["rigorous_grid_delayed", "fit_rpc_delayed", "fit_many", "ExactCamera", "WORKER_ENVIRON"]

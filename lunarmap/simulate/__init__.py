@@ -4,8 +4,8 @@ full-size images written into ISIS cubes stripe by stripe), stereo geometry, adj
 from ..errors import SimulationWarning
 from .albedo import TiledAlbedo, tiled_albedo
 from .blocks import Measurements, SimulatedBlock, frame_block, linescan_site, local_enu, observe
-from .dlr import Blunders, DlrSimulation, dlr_block, inject_blunders
 from .compiled_render import RenderedCube, RenderScene, render_cube, render_window
+from .dlr import Blunders, DlrSimulation, dlr_block, inject_blunders
 from .mission import RenderedBlock, block_cameras, block_check_points, block_scene, render_block, render_block_cubes
 from .render import RenderSpec, render_image, surface_normals
 from .sampling import RasterSampler

@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 from ..camera.frame import FrameCamera, image_to_focal
 from ..camera.intersect import DtmSampler
 from ..camera.linescan import LineScanCamera
-from ..errors import ConvergenceError, CubeWriteError, InvalidInputError, SimulationWarning, warn
+from ..errors import ConvergenceError, InvalidInputError, SimulationWarning, warn
 from ..io.cube import CubeWriter
 from ..io.special import PIXEL_TYPES, special_values
 from .albedo import TiledAlbedo

@@ -30,8 +30,7 @@ import xarray as xr
 from numpy.typing import ArrayLike, NDArray
 
 from ..camera.intersect import DtmSampler
-from ..errors import InvalidInputError, warn
-from ..errors import SimulationWarning
+from ..errors import InvalidInputError, SimulationWarning, warn
 from .sampling import RasterSampler
 
 __all__ = ["render_image", "surface_normals", "RenderSpec"]

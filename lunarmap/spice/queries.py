@@ -13,7 +13,6 @@ from typing import Sequence
 import numpy as np
 import spiceypy
 from numpy.typing import ArrayLike, NDArray
-
 from spiceypy.utils.exceptions import SpiceyError
 
 from ..errors import KernelCoverageError, UnknownInstrumentError

@@ -15,13 +15,40 @@ of several sites along each orbit's ground track (``sites=n``);
 
 from .block import BlockImagePlan, BlockModel, BlockPass, BlockSite, block_geometry, build_block_model
 from .block_cameras import BLOCK_CAMERAS, BLOCK_FRAME, BLOCK_NAC, BLOCK_TC, BlockCameraSpec
-from .block_writing import (BLOCK_MANIFEST_NAME, NAVIGATION_METAKERNEL, TRUTH_METAKERNEL, BlockMission,
-                            open_block_mission, write_block_mission)
+from .block_writing import (
+                            BLOCK_MANIFEST_NAME,
+                            NAVIGATION_METAKERNEL,
+                            TRUTH_METAKERNEL,
+                            BlockMission,
+                            open_block_mission,
+                            write_block_mission,
+)
 from .cameras import FRAME_CAMERA, NAC, CameraSpec
-from .ids import (BUS_FRAME, BUS_FRAME_ID, FRAME_CAMERA_FRAME, FRAME_CAMERA_ID, FRAME_CAMERA_NAME,
-                  IMAGE_NAMES, INERTIAL_FRAME, KERNEL_FILES, KW_CAMERA_TYPE, KW_DISTORTION_MODEL,
-                  KW_LIGHTTIME_CORRECTION, MANIFEST_NAME, METAKERNEL_NAME, MOON_FRAME, MOON_ID, NAC_FRAME,
-                  NAC_ID, NAC_NAME, SCLK_ID, SPACECRAFT_ID, SPACECRAFT_NAME, SSB_ID, SUN_ID)
+from .ids import (
+                            BUS_FRAME,
+                            BUS_FRAME_ID,
+                            FRAME_CAMERA_FRAME,
+                            FRAME_CAMERA_ID,
+                            FRAME_CAMERA_NAME,
+                            IMAGE_NAMES,
+                            INERTIAL_FRAME,
+                            KERNEL_FILES,
+                            KW_CAMERA_TYPE,
+                            KW_DISTORTION_MODEL,
+                            KW_LIGHTTIME_CORRECTION,
+                            MANIFEST_NAME,
+                            METAKERNEL_NAME,
+                            MOON_FRAME,
+                            MOON_ID,
+                            NAC_FRAME,
+                            NAC_ID,
+                            NAC_NAME,
+                            SCLK_ID,
+                            SPACECRAFT_ID,
+                            SPACECRAFT_NAME,
+                            SSB_ID,
+                            SUN_ID,
+)
 from .mission import ImagePlan, SimMission, build_mission
 from .nav_errors import NavigationErrors, NavigationErrorSpec
 from .writing import load_manifest, write_mission

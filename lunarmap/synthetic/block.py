@@ -63,10 +63,16 @@ from scipy.spatial.transform import Rotation
 from ..errors import InvalidInputError
 from . import textkernels
 from .attitude import NadirAttitude
-from .block_cameras import (BLOCK_CAMERAS, BLOCK_FRAME, BLOCK_NAC, BLOCK_TC, FULL_NAC_LINES, FULL_SIZE_CAMERAS,
-                            BlockCameraSpec)
-from .bodies import (MOON_RADIUS_KM, frame_rotation, j2000_to_iau_moon, moon_spin_rate, moon_state_ssb,
-                     sun_state_ssb)
+from .block_cameras import (
+    BLOCK_CAMERAS,
+    BLOCK_FRAME,
+    BLOCK_NAC,
+    BLOCK_TC,
+    FULL_NAC_LINES,
+    FULL_SIZE_CAMERAS,
+    BlockCameraSpec,
+)
+from .bodies import MOON_RADIUS_KM, frame_rotation, j2000_to_iau_moon, moon_spin_rate, moon_state_ssb, sun_state_ssb
 from .mission import ALTITUDE_KM, FRAME_EXPOSURE_MS, MISSION_START_TDB, ImageTiming, tdb_to_et
 from .nav_errors import NavigationErrors, NavigationErrorSpec, draw_navigation_errors
 from .orbit import KeplerOrbit

@@ -37,8 +37,19 @@ from ..spice import KernelSet, kernels
 from ..spice import queries as q
 from ..spice.writer import Append, CkSegment, SpkSegment, Value, write_ck, write_spk, write_text_kernel
 from . import ids, textkernels
-from .block import (FULL_SIZE_ORBITS, MULTI_SITE_NAVIGATION, NAV_CK_STEP, NAV_SPK_STEP, SITE_SPACING_DEG, TRUTH_CK_STEP,
-                    TRUTH_SPK_STEP, BlockModel, BlockPass, block_geometry, build_block_model)
+from .block import (
+    FULL_SIZE_ORBITS,
+    MULTI_SITE_NAVIGATION,
+    NAV_CK_STEP,
+    NAV_SPK_STEP,
+    SITE_SPACING_DEG,
+    TRUTH_CK_STEP,
+    TRUTH_SPK_STEP,
+    BlockModel,
+    BlockPass,
+    block_geometry,
+    build_block_model,
+)
 from .block_cameras import FULL_SIZE_CAMERAS, BlockCameraSpec
 from .bodies import MOON_RADIUS_KM, moon_state_ssb, sun_state_ssb
 from .labels import isis_label

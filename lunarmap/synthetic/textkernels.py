@@ -12,9 +12,19 @@ import numpy as np
 
 from ..spice.writer import Append, KernelDate, Value
 from . import ids
-from .bodies import (EARTH_MOON_NUT_PREC_ANGLES, MOON_GM, MOON_NUT_PREC_DEC, MOON_NUT_PREC_PM,
-                     MOON_NUT_PREC_RA, MOON_PM, MOON_POLE_DEC, MOON_POLE_RA, MOON_RADIUS_KM, SUN_GM,
-                     SUN_RADIUS_KM)
+from .bodies import (
+    EARTH_MOON_NUT_PREC_ANGLES,
+    MOON_GM,
+    MOON_NUT_PREC_DEC,
+    MOON_NUT_PREC_PM,
+    MOON_NUT_PREC_RA,
+    MOON_PM,
+    MOON_POLE_DEC,
+    MOON_POLE_RA,
+    MOON_RADIUS_KM,
+    SUN_GM,
+    SUN_RADIUS_KM,
+)
 from .cameras import CameraSpec
 
 __all__ = ["lsk", "sclk", "pck", "fk", "ik", "LEAP_SECONDS", "SCLK_MODULI", "SCLK_ZERO_TDB"]

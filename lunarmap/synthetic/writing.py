@@ -26,7 +26,7 @@ from . import ids, textkernels
 from .bodies import MOON_RADIUS_KM, moon_state_ssb, sun_state_ssb
 from .cameras import FRAME_CAMERA, NAC
 from .labels import isis_label
-from .mission import (CK_STEP, PLANET_MARGIN, PLANET_STEP, SPK_DEGREE, SPK_STEP, SimMission, build_mission)
+from .mission import CK_STEP, PLANET_MARGIN, PLANET_STEP, SPK_DEGREE, SPK_STEP, SimMission, build_mission
 
 __all__ = ["write_mission", "load_manifest", "metakernel_text"]
 

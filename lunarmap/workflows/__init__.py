@@ -8,8 +8,8 @@
 """
 
 from .config import ImageSpec, NavigationConfig, RunConfig, config_from_dict, load_config
-from .example import write_example
 from .engine import STAGES, RunPlan, RunResult, build_graph, plan, run
+from .example import write_example
 from .store import Store, file_digest, step_key
 
 __all__ = ["run", "plan", "RunPlan", "RunResult", "RunConfig", "ImageSpec", "NavigationConfig", "load_config", "config_from_dict",

@@ -36,14 +36,25 @@ from typing import Any, Callable
 
 import dask
 import numpy as np
-import xarray as xr
 
-from ..errors import ConfigError, WorkflowError
-from .config import RunConfig, load_config
-from ..errors import LunarmapError
+from ..errors import ConfigError, LunarmapError
 from ..procmem import peak_rss_mb
-from .steps import (Done, ImageDone, ImageJob, MatchJob, adjust_step, adjusted_rpc_batch, as_dict, image_steps,
-                    kernels_step, match_batch, provenance, read_pixels, tiepoints_step)
+from .config import RunConfig, load_config
+from .steps import (
+    Done,
+    ImageDone,
+    ImageJob,
+    MatchJob,
+    adjust_step,
+    adjusted_rpc_batch,
+    as_dict,
+    image_steps,
+    kernels_step,
+    match_batch,
+    provenance,
+    read_pixels,
+    tiepoints_step,
+)
 from .store import Store, _entry_digests, file_digest, files_digest, load_digests, save_digests, step_key
 
 __all__ = ["RunResult", "RunPlan", "run", "plan", "build_graph", "STAGES"]
@@ -364,7 +375,7 @@ def plan(config: RunConfig | str | os.PathLike[str]) -> RunPlan:
     """
     from ..camera.factory import camera_from_isd
     from ..errors import NoOverlapError
-    from ..evaluate.footprint import candidate_pairs, footprint
+    from ..evaluate.footprint import footprint
     from ..orientation.drivers import image_support
     from .checks import check_before_work
     from .steps import Done, ImageDone, footprint_step

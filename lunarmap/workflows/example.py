@@ -380,12 +380,12 @@ def _block_points(bm: Any, use: list[str], n_control: int, n_check: int, control
 def _full_size_points(bm: Any, use: list[str], n_control: int, n_check: int, control_sigma: float,
                       sigma_px: float, seed: int) -> Any:
     """Control and check points of the full-size block, per cross-orbit pair of one camera and strip."""
+    import xarray as xr
+
     from ..adjust import merge_networks
     from ..camera.intersect import DtmSampler
     from ..simulate import block_cameras, block_check_points
     from ..simulate.mission import block_dtm_file
-
-    import xarray as xr
 
     truth = block_cameras(bm, "truth", use)
     with xr.open_dataarray(bm.folder / block_dtm_file(bm)) as d:
@@ -401,7 +401,10 @@ def _full_size_points(bm: Any, use: list[str], n_control: int, n_check: int, con
         raise InvalidInputError(f"the full-size example's points need images of one camera and strip on two orbits; "
                                 f"{use} has none")
     rng = np.random.default_rng(seed + 1)
-    share = lambda total: [total // len(groups) + (1 if i < total % len(groups) else 0) for i in range(len(groups))]
+
+    def share(total: int) -> list[int]:
+        return [total // len(groups) + (1 if i < total % len(groups) else 0) for i in range(len(groups))]
+
     nets_c, nets_k = [], []
     for i, ((kind, here), nc, nk) in enumerate(zip(groups.items(), share(n_control), share(n_check))):
         for n, what, out, s in ((nc, "control", nets_c, 11), (nk, "check", nets_k, 12)):

@@ -573,8 +573,14 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
     t = time.perf_counter()
     if store.has("adjust", key):
         return Done("adjust", key, "", str(store.path("adjust", key)), False)
-    from ..adjust import (NavigationSpec, SolverOptions, build_block, merge_networks, network_from_tiepoints,
-                          read_network)
+    from ..adjust import (
+        NavigationSpec,
+        SolverOptions,
+        build_block,
+        merge_networks,
+        network_from_tiepoints,
+        read_network,
+    )
     from ..adjust.block import Block, BlockResult
     from ..adjust.export import adjusted_image_support
     from ..adjust.variance import estimate_image_variances

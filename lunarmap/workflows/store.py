@@ -236,9 +236,7 @@ class Store:
 
     def write(self, step: str, key: str, ext: str, writer: Callable[[Path], Any]) -> Path:
         """Write one file atomically with ``writer(tmp_path)``; returns the final path."""
-        from ..atomic import atomic_write
-
-        from ..atomic import disk_guard
+        from ..atomic import atomic_write, disk_guard
 
         final = self.path(step, key, ext)
         with disk_guard(final, f"the {step} step's output"):

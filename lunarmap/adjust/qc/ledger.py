@@ -276,7 +276,7 @@ class Ledger:
             def sees(X):
                 if X is None or not np.all(np.isfinite(X)):
                     return False
-                x = model.project(pb.cam_params, o.cam_idx[track], np.broadcast_to(X, (track.size, 3)))
+                x = model.project(pb.cam_params, o.cam_idx[track], np.broadcast_to(X, (track.size, 3)))  # noqa: B023
                 return bool(np.all(np.isfinite(x)))
 
             use = track[act[track]]

@@ -173,7 +173,7 @@ def robust_step(ledger: Ledger, function: str = "danish", c: float | None = None
         rounds = 1
     else:
         result = ledger.adjust(options)
-        for rounds in range(1, max_rounds + 1):
+        for rounds in range(1, max_rounds + 1):  # noqa: B007 (the count is reported after the loop)
             if normalise == "redundancy":
                 red = result.precision().redundancy_numbers
             w = weights_for(result.state)

@@ -686,7 +686,7 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
         cands.sort(key=lambda c: -c[0])
         if per_round == "one":
             cands = cands[:1]
-        for val, kind, a, b in cands:
+        for _val, kind, a, b in cands:
             if kind == "image":
                 comp = int(np.nanargmax(np.where(np.isnan(wi[a]), -1, wi[a])))
                 ledger.remove_image(a, "baarda", rnd, value=float(tests["image"][a, comp]),

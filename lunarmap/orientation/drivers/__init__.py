@@ -17,19 +17,20 @@ from ...errors import UnknownInstrumentError
 from ...labels import Label, load_label
 from ...spice import KernelSet, kernels
 from ..isd import ImageSupport
+
+# historical film cameras (issue 13)
+from .apollo import ApolloMetricDriver
 from .base import Driver
+
+# issue 26
+from .chandrayaan import Chandrayaan1M3Driver, Chandrayaan1M3Pds3Driver, Chandrayaan2OhrcDriver, Chandrayaan2TmcDriver
 from .clementine import ClementineDriver, ClementineUvvisDriver
 from .generic import GenericDriver
 from .kaguya import KaguyaMiDriver, KaguyaTcDriver
 from .lro import LroNacDriver, LroNacPds3Driver
-# historical film cameras (issue 13)
-from .apollo import ApolloMetricDriver
-from .lunar_orbiter import LunarOrbiterHighDriver, LunarOrbiterMediumDriver
-# issue 26
-from .chandrayaan import (Chandrayaan1M3Driver, Chandrayaan1M3Pds3Driver, Chandrayaan2OhrcDriver,
-                          Chandrayaan2TmcDriver)
 from .lro_minirf import LroMiniRfDriver
 from .lro_wac import LroWacDriver
+from .lunar_orbiter import LunarOrbiterHighDriver, LunarOrbiterMediumDriver
 
 __all__ = ["Driver", "LroNacDriver", "LroNacPds3Driver", "ClementineUvvisDriver", "KaguyaTcDriver", "GenericDriver",
            "LunarOrbiterHighDriver", "ApolloMetricDriver", "LroWacDriver", "LroMiniRfDriver",

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 from typing import Any
 
-
 from ...errors import LabelError, UnknownInstrumentError
 from ...labels import Label
 from ...spice import queries as q
