@@ -402,7 +402,7 @@ def _full_size_points(bm: Any, use: list[str], n_control: int, n_check: int, con
                                 f"{use} has none")
     rng = np.random.default_rng(seed + 1)
 
-    def share(total: int) -> list[int]:
+    def share(total):  # untyped as the lambda it replaces (typed, mypy misreads the loop below)
         return [total // len(groups) + (1 if i < total % len(groups) else 0) for i in range(len(groups))]
 
     nets_c, nets_k = [], []
