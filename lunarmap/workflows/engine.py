@@ -35,7 +35,6 @@ from pathlib import Path
 from typing import Any, Callable
 
 import dask
-import numpy as np
 
 from ..errors import ConfigError, LunarmapError
 from ..procmem import peak_rss_mb
@@ -45,6 +44,7 @@ from .steps import (
     ImageDone,
     ImageJob,
     MatchJob,
+    _dtm_sampler,
     adjust_step,
     adjusted_rpc_batch,
     as_dict,
@@ -52,7 +52,6 @@ from .steps import (
     kernels_step,
     match_batch,
     provenance,
-    read_pixels,
     tiepoints_step,
 )
 from .store import Store, _entry_digests, file_digest, files_digest, load_digests, save_digests, step_key
@@ -214,8 +213,9 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
     names = [im.name for im in cfg.images]
     heights = [float(min(cfg.rpc_height_range)), float(max(cfg.rpc_height_range))]
     if cfg.dtm is not None:
-        dtm_values = read_pixels(cfg.dtm).values
-        heights = [min(heights[0], float(np.nanmin(dtm_values))), max(heights[1], float(np.nanmax(dtm_values)))]
+        # the matcher's own sampler (one copy of the grid per process; a serial run shares it with the matching)
+        dtm = _dtm_sampler(cfg.dtm)[0]
+        heights = [min(heights[0], dtm.min_height), max(heights[1], dtm.max_height)]
     rpc_range = cfg.rpc_height_range if cfg.rpc_enabled else None
     image: dict[str, Any] = {}
     jobs_of: dict[str, ImageJob] = {}

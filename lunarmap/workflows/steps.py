@@ -94,8 +94,9 @@ def _stamp(path: str | Path) -> tuple[str, int, int]:
 
 
 def read_pixels(path: str | Path) -> xr.DataArray:
-    """A whole raster as a ``(line, sample)`` DataArray, in memory: for the run's DTM (heights of the
-    tie-point prediction), never for images (they are read by window: :func:`_windowed`).
+    """A whole raster as a ``(line, sample)`` DataArray, in memory: for small rasters, never for images
+    (they are read by window: :func:`_windowed`); the run's DTM is read once per process as a height
+    sampler (:func:`_dtm_sampler`).
 
     Read once per process (cached by path, size and modification time; at most 4 files).
 
@@ -289,9 +290,7 @@ def pyramid_step(store: Store, key: str, name: str, pixels: str, levels: int, sa
             Pyramid(path, digest=digest)
             return Done("pyramid", key, name, str(path), False)
         except PyramidError as err:
-            import logging
-
-            logging.getLogger(__name__).warning("%s: recomputing the pyramid: %s", name, err)
+            _log.warning("%s: recomputing the pyramid: %s", name, err)
             from .store import remove_entry
 
             remove_entry(path)
@@ -351,9 +350,7 @@ def _windowed(store: Store, name: str, pixels: str, digest: str, params: Any, py
     try:
         return _windowed_of(*_stamp(pixels), sat, *_stamp(pyramid.path))
     except (OSError, PyramidError) as err:
-        import logging
-
-        logging.getLogger(__name__).warning("%s: computing its pyramid again: %s", name, err)
+        _log.warning("%s: computing its pyramid again: %s", name, err)
         Path(pyramid.path).unlink(missing_ok=True)
         _windowed_of.cache_clear()
         again = pyramid_step(store, pyramid.key, name, pixels, params.match.pyramid_levels, sat, digest)
@@ -792,11 +789,9 @@ def kernels_step(store: Store, key: str, names: Sequence[str], adjusted: Done, i
             mk = write_orientation_kernels(isd_list, folder, metakernel, name="adjusted")
             index = {n: mk.name for n in names}
         except OrientationConflictError as err:
-            import logging
-
             sets = kernel_sets(isd_list)
-            logging.getLogger(__name__).warning("adjusted kernels in %d sets, one per group of images that do not "
-                                                "overlap in time: %s", len(sets), err)
+            _log.warning("adjusted kernels in %d sets, one per group of images that do not overlap in time: %s",
+                         len(sets), err)
             index = {}
             for k, group in enumerate(sets, start=1):
                 mk = write_orientation_kernels([isd_list[i] for i in group], folder, metakernel, name=f"adjusted_{k}")
