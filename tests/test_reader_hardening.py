@@ -308,3 +308,53 @@ def test_geotiff_header_declaring_more_pixels_than_the_file_holds():
     with pytest.raises(CubeFormatError, match="59762 band"):
         open_image(path)
     assert time.perf_counter() - t < 2.0
+
+
+def _tiny_tiff(endian: str, samples: int, directories: int) -> bytes:
+    """A classic TIFF of 1 x 1 pixel directories each declaring ``samples`` samples per pixel (closed form)."""
+    import struct
+
+    e = "<" if endian == "II" else ">"
+    out = bytearray(endian.encode() + struct.pack(e + "HI", 42, 8))
+    tags = [(256, 3, 1, 1), (257, 3, 1, 1), (258, 3, 1, 8), (259, 3, 1, 1), (262, 3, 1, 1),
+            (273, 4, 1, 0), (277, 3, 1, samples), (278, 3, 1, 1), (279, 4, 1, 1), (284, 3, 1, 2)]
+    for d in range(directories):
+        start = len(out)
+        nxt = start + 2 + 12 * len(tags) + 4 if d + 1 < directories else 0
+        out += struct.pack(e + "H", len(tags))
+        for tag, typ, cnt, val in tags:
+            value = struct.pack(e + "HH", val, 0) if typ == 3 else struct.pack(e + "I", val)
+            out += struct.pack(e + "HHI", tag, typ, cnt) + value
+        out += struct.pack(e + "I", nxt)
+    return bytes(out)
+
+
+@pytest.mark.parametrize("endian", ["II", "MM"])
+def test_tiff_declaring_thousands_of_bands_is_refused_before_gdal_opens_it(tmp_path, endian):
+    """Found by the issue-28 fuzzing: a 6 kB strip TIFF grew the process by 92 MB inside GDAL's open (one band
+    object per declared sample of every directory: 65,535 samples in two directories of a 274-byte file).
+    Refused from the TIFF directories before GDAL opens the file; memory growth inside the readers' budget."""
+    pytest.importorskip("rasterio")
+    from lunarmap.io.raster import open_image
+
+    path = tmp_path / "bands.tif"
+    path.write_bytes(_tiny_tiff(endian, 65535, 2))
+    with open("/proc/self/clear_refs", "w") as fh:
+        fh.write("5")
+    before = _vm_hwm_mb()
+    with pytest.raises(CubeFormatError, match="131070 bands"):
+        open_image(path)
+    assert _vm_hwm_mb() - before < 10 * path.stat().st_size / 2**20 + 64
+    # the same directories with 3 samples: opened (the preflight refuses only what no file of this size holds)
+    path.write_bytes(_tiny_tiff(endian, 3, 2))
+    try:
+        img = open_image(path)
+    except CubeFormatError as err:  # GDAL may refuse the pixel-less strips, but not for their bands
+        assert "bands in all" not in str(err)
+    else:
+        assert img.shape[0] == 3
+
+
+def _vm_hwm_mb() -> float:
+    with open("/proc/self/status") as fh:
+        return next(int(line.split()[1]) for line in fh if line.startswith("VmHWM")) / 1024

@@ -282,6 +282,57 @@ class _GdalReader:
         return out.astype(self.dtype, copy=False)
 
 
+def _tiff_bands(path: str) -> int | None:
+    """Bands declared by every image directory of a TIFF (main image, overviews, masks), read before GDAL opens it.
+
+    GDAL builds one band object (~0.8 kB) per declared sample of every directory at open: a 150-byte
+    TIFF declaring 65,535 samples per pixel costs 54 MB, and two such directories 92 MB (issue 28's
+    fuzzing), before anything could be compared with the file's size. ``None`` when the file is not a
+    TIFF (the other formats GDAL reads) or its directory chain cannot be followed (GDAL says why).
+    """
+    import struct
+
+    size = os.path.getsize(path)
+    with open(path, "rb") as f:
+        head = f.read(16)
+        if len(head) < 8 or head[:2] not in (b"II", b"MM"):
+            return None
+        e = "<" if head[:2] == b"II" else ">"
+        magic = struct.unpack(e + "H", head[2:4])[0]
+        if magic == 42:
+            big, offset = False, struct.unpack(e + "I", head[4:8])[0]
+        elif magic == 43 and len(head) == 16:
+            big, offset = True, struct.unpack(e + "Q", head[8:16])[0]
+        else:
+            return None
+        count_fmt, entry_fmt, entry_size, next_fmt = (("Q", "HHQQ", 20, "Q") if big else ("H", "HHII", 12, "I"))
+        total, seen = 0, set()
+        # a directory is at least one entry long: the chain cannot be longer than the file allows
+        while offset and offset not in seen and len(seen) < size // entry_size + 1:
+            seen.add(offset)
+            f.seek(offset)
+            raw = f.read(struct.calcsize(e + count_fmt))
+            if len(raw) < struct.calcsize(e + count_fmt):
+                return None
+            n = struct.unpack(e + count_fmt, raw)[0]
+            if n * entry_size > size:
+                return None
+            entries = f.read(n * entry_size)
+            if len(entries) < n * entry_size:
+                return None
+            bands = 1
+            for k in range(n):
+                tag, typ, cnt, value = struct.unpack(e + entry_fmt, entries[k * entry_size:(k + 1) * entry_size])
+                if tag == 277 and cnt >= 1:  # SamplesPerPixel, SHORT (stored left-justified in the value field)
+                    bands = value >> (48 if big else 16) if e == ">" and typ == 3 else value & 0xFFFF
+            total += bands
+            raw = f.read(struct.calcsize(e + next_fmt))
+            if len(raw) < struct.calcsize(e + next_fmt):
+                break
+            offset = struct.unpack(e + next_fmt, raw)[0]
+    return total
+
+
 def _open_gdal(path: str, chunks: Any) -> xr.DataArray:
     try:
         import rasterio
@@ -291,6 +342,12 @@ def _open_gdal(path: str, chunks: Any) -> xr.DataArray:
                               "rasterio: pip install lunarmap[raster]") from None
     import warnings
 
+    # every band must be backed by at least one byte of the file (even compressed), and GDAL allocates
+    # per declared band at open: bound the bands before GDAL sees the file (issue 28)
+    bands = _tiff_bands(path)
+    if bands is not None and bands > max(os.path.getsize(path), 1024):
+        raise CubeFormatError(f"{path}: its TIFF directories declare {bands} bands in all, more than a "
+                              f"{os.path.getsize(path)}-byte file can hold (damaged header)")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # NotGeoreferencedWarning for plain images
