@@ -71,6 +71,8 @@ class DemoReport:
     sigma0_after_qc: float = float("nan")
     qc_truth: dict[str, Any] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=dict)
+    peak_rss_mb: dict[str, float] = field(default_factory=dict)
+    peak_rss_mb_by_step: dict[str, float] = field(default_factory=dict)
     files: dict[str, Path] = field(default_factory=dict)
 
     def text(self) -> str:
@@ -100,6 +102,11 @@ class DemoReport:
             "  cubic RFMs of the adjusted cameras (outputs/rpc_adjusted/<image>_RPC.TXT), check RMS: "
             + ", ".join(f"{k} {v:.1e} px" for k, v in self.rpc_adjusted_check_rms_px.items()),
             "  time (s): " + ", ".join(f"{k} {v:.1f}" for k, v in self.seconds.items()),
+            *(["  peak resident memory (MB): " + ", ".join(
+                f"{'main' if k == 'main' else 'worker ' + k.rsplit(':', 1)[-1]} {v:.0f}"
+                for k, v in self.peak_rss_mb.items())
+               + ("; by step: " + ", ".join(f"{k} {v:.0f}" for k, v in self.peak_rss_mb_by_step.items())
+                  if self.peak_rss_mb_by_step else "")] if self.peak_rss_mb else []),
             f"  report: {self.files.get('report', '')}; configuration: {self.files.get('config', '')}",
         ]
         return "\n".join(lines)
@@ -310,7 +317,8 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
         camera_normalized_rms=float(np.sqrt(np.mean(z ** 2))), reload_position_mm=1e3 * d_pos, reload_px=d_px,
         rpc_check_rms_px=rpc_rms, rpc_adjusted_check_rms_px=rpc_adj_rms, quality_control=qc_text(s, sigma0=False),
         sigma0_first=float(q.get("sigma0_first", np.nan)), sigma0_after_qc=float(q.get("sigma0_last", np.nan)),
-        qc_truth=qc_truth, seconds=seconds,
+        qc_truth=qc_truth, seconds=seconds, peak_rss_mb=dict(s.get("peak_rss_mb", {})),
+        peak_rss_mb_by_step=dict(s.get("peak_rss_mb_by_step", {})),
         files={"metakernel": result.outputs.get("metakernel", result.outputs["kernels"]),
                "tiepoints": result.outputs["tiepoints"],
                "report": result.report or Path(), "config": config, "navigation": bm.navigation_metakernel,

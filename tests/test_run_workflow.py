@@ -209,6 +209,14 @@ def test_local_cluster_gives_identical_results(example, serial):
     a, b = _points(res), _points(serial)
     assert np.max(np.abs(a - b) / np.abs(b).max()) <= 1e-9
     assert res.summary["sigma0"] == pytest.approx(serial.summary["sigma0"], rel=1e-9)
+    # memory: the main process and both workers' VmHWM, and per step the largest peak of a process while one
+    # of its tasks computed; a step's peak cannot exceed the high-water mark of the processes that ran it
+    peaks, by_step = res.summary["peak_rss_mb"], res.summary["peak_rss_mb_by_step"]
+    assert len(peaks) == 3 and "main" in peaks and all(v > 50 for v in peaks.values())
+    assert {"isd", "pyramid", "detect", "match", "tiepoints", "adjust"} <= set(by_step)
+    assert all(0 < v <= max(peaks.values()) + 1 for v in by_step.values()), (by_step, peaks)
+    # every computed record carries its own; reused records none
+    assert all(d.peak_mb > 0 for d in res.done if d.computed) and all(d.peak_mb == 0 for d in res.done if not d.computed)
 
 
 def _start_scheduler(tmp: Path) -> tuple[list[subprocess.Popen], str]:

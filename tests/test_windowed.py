@@ -273,3 +273,35 @@ def test_thinning_finds_a_narrow_overlap_along_a_long_image():
     assert np.all(sample[every] > 140.0)                             # and only those near it (one dilated cell)
     keep = thin_points(line, sample, strength, 500, *args, cell=8.0)
     assert 250 <= keep.size <= 500 and np.all(sample[keep] > 140.0)
+
+
+def test_reading_a_chunked_netcdf_image_by_window_keeps_no_chunk_cache(tmp_path):
+    """HDF5's per-variable chunk cache (64 MB by default) filled as windows were read and stayed while the file
+    was open: a worker matching eight full-size images grew by ~1 GB through their pyramid levels. Reading a
+    64 MB image window by window now leaves the process's resident memory within a few MB of where it was."""
+    import gc
+
+    import netCDF4
+
+    from lunarmap.io.window import NETCDF_CHUNK_CACHE_BYTES
+    from lunarmap.procmem import rss_mb
+
+    path = tmp_path / "big.nc"
+    n = 4096
+    with netCDF4.Dataset(path, "w") as ds:
+        ds.createDimension("line", n)
+        ds.createDimension("sample", n)
+        v = ds.createVariable("level_1", "f4", ("line", "sample"), chunksizes=(256, 256))
+        for k in range(0, n, 512):
+            v[k:k + 512] = np.arange(k, k + 512, dtype=np.float32)[:, None] + np.zeros(n, np.float32)
+    src = PixelSource(path)
+    assert src._open().var.get_var_chunk_cache()[0] == NETCDF_CHUNK_CACHE_BYTES
+    gc.collect()
+    before = rss_mb()
+    for k in range(100, n - 256, 256):      # windows across chunk borders, as the matcher's regions are
+        block = src.read(k, k + 256, 100, n - 100)
+        assert block[0, 0] == k and block[-1, -1] == k + 255
+    del block
+    gc.collect()
+    assert rss_mb() - before < 8.0, f"{rss_mb() - before:.1f} MB kept after reading a 64 MB image by window"
+    src.close()

@@ -87,6 +87,9 @@ class ArraySource:
 
 _NETCDF = (".nc", ".nc4", ".netcdf")
 
+#: HDF5 chunk cache of each netCDF variable read by window, bytes (four 256 x 256 float32 chunks).
+NETCDF_CHUNK_CACHE_BYTES = 1 << 20
+
 
 class PixelSource:
     """An image file read by window (see the module docstring).
@@ -157,6 +160,12 @@ class PixelSource:
             ds.close()
             raise ImageWindowError(f"netCDF image {p}: variable {names[0]} must be 2-D (line, sample), got "
                                    f"dims {var.dimensions}")
+        # HDF5 keeps a chunk cache per open variable (64 MB by default in netCDF-C 4.9+) that fills as windows
+        # are read and is kept while the file is open: a worker holding the four pyramid levels of eight
+        # full-size images open grew by ~1 GB. The matcher's region cache (bounded in bytes) already keeps
+        # what is read again, so HDF5 keeps only a few chunks
+        if var.chunking() != "contiguous":
+            var.set_var_chunk_cache(size=NETCDF_CHUNK_CACHE_BYTES, nelems=61, preemption=0.75)
         return _NetcdfVariable(ds, var)
 
     # -- reading ----------------------------------------------------------------------------

@@ -740,6 +740,12 @@ def _run_locked(cfg: RunConfig, scheduler: Any, workers: int, report: bool | Non
             files, summary = _export(cfg, graph, progress.records)
         summary["tasks"] = len(first.tasks) + len(graph.tasks)
         summary["peak_rss_mb"] = peaks
+        # per step: the largest process peak while one of its tasks computed (which step sets a worker's size)
+        by_step: dict[str, float] = {}
+        for d in progress.records:
+            if d.computed and d.peak_mb:
+                by_step[d.step] = max(by_step.get(d.step, 0.0), d.peak_mb)
+        summary["peak_rss_mb_by_step"] = by_step
         result = RunResult(cfg, cfg.output, summary, files, progress.records, progress.stage_seconds,
                            tasks=summary["tasks"], peak_rss_mb=peaks)
         if cfg.html if report is None else report:

@@ -50,6 +50,9 @@ class Done:
         Wall time of this call.
     note : str
         A short remark (e.g. why a pair was skipped).
+    peak_mb : float
+        Peak resident memory of the process while this call computed the step, MB (sampled every
+        0.1 s; 0 when reused): what a worker needs for it, including what the process already held.
     """
 
     step: str
@@ -59,14 +62,21 @@ class Done:
     computed: bool
     seconds: float = 0.0
     note: str = ""
+    peak_mb: float = 0.0
 
 
 def _one_blas_thread(fn: Callable[..., Done]) -> Callable[..., Done]:
-    """Run a step with one BLAS thread, as on dask workers: results do not depend on where a step ran."""
+    """Run a step with one BLAS thread, as on dask workers (results do not depend on where a step ran),
+    and record the process's peak resident memory while it computed (the run's per-step memory figures)."""
+    from ..procmem import peak_rss_during
+
     @functools.wraps(fn)
     def wrapped(*args: Any, **kwargs: Any) -> Done:
-        with single_threaded_blas():
-            return fn(*args, **kwargs)
+        with single_threaded_blas(), peak_rss_during(0.1) as memory:
+            out = fn(*args, **kwargs)
+        if isinstance(out, Done) and out.computed:
+            out = replace(out, peak_mb=round(memory.peak_mb, 1))
+        return out
     return wrapped
 
 
