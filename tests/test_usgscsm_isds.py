@@ -337,3 +337,59 @@ def test_ledger_cases_are_in_test_usgscsm_cases():
     for case, where in LEDGER.items():
         if where == "cases":
             assert case.split(".")[1] in text, case
+
+
+# -- limited-precision rotations: read normalised, as usgscsm reads them -----------------------------------
+
+def _rounded(values: Any, digits: int) -> Any:
+    return np.round(np.asarray(values, float), digits).tolist()
+
+
+def test_quaternions_printed_to_6_digits_read_normalised(tmp_path):
+    """usgscsm normalises any quaternion; lunarmap reads those up to 1e-3 off unit norm normalised."""
+    doc = _doc("orbitalFramer.json")
+    q = np.array(doc["instrument_pointing"]["quaternions"], float)
+    q[:, 0] += 3e-5                                    # a writer's rounding: norm 1 + ~3e-5
+    rough = _edited(doc, instrument_pointing__quaternions=q.tolist())
+    full = _load(tmp_path, _edited(doc, instrument_pointing__quaternions=(q / np.linalg.norm(
+        q, axis=1)[:, None]).tolist()), "normalised.json")
+    path = tmp_path / "rough.json"
+    path.write_text(json.dumps(rough))
+    with pytest.warns(IsdConventionWarning, match="instrument_pointing.quaternions: .* read normalised"):
+        cam = camera_from_isd_file(path)
+    L, S = _grid(full)
+    g, h = (c.image_to_ground(L, S, 0.0, on_miss="nan") for c in (cam, full))
+    assert np.isfinite(h).any() and np.nanmax(np.abs(g - h)) <= 1e-9
+
+
+def test_far_from_unit_quaternion_still_refused(tmp_path):
+    doc = _doc("simpleFramerISD.json")
+    path = tmp_path / "bad_q.json"
+    path.write_text(json.dumps(_edited(doc, instrument_pointing__quaternions=[[0.0, 0.0, 0.0, 1.01]])))
+    with pytest.raises(IsdFormatError, match=r"bad_q.json: key 'instrument_pointing.quaternions' must hold unit"):
+        camera_from_isd_file(path)
+
+
+def test_constant_rotation_printed_to_7_digits_read_as_nearest_rotation(tmp_path):
+    doc = _doc("orbitalFramer.json")
+    a = 0.3
+    c = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    frames = {"instrument_pointing__time_dependent_frames": [-1000, 1],
+              "instrument_pointing__constant_frames": [-1001, -1000]}
+    exact = _load(tmp_path, _edited(doc, instrument_pointing__constant_rotation=c.ravel().tolist(), **frames),
+                  "exact.json")
+    path = tmp_path / "rounded.json"
+    path.write_text(json.dumps(_edited(doc, instrument_pointing__constant_rotation=_rounded(c.ravel(), 7),
+                                       **frames)))
+    with pytest.warns(IsdConventionWarning, match="constant_rotation is .* from orthonormal"):
+        cam = camera_from_isd_file(path)
+    assert np.abs(cam.rays(5.0, 11.0)[1] - exact.rays(5.0, 11.0)[1]).max() <= 1e-7
+
+
+def test_reflection_constant_rotation_refused(tmp_path):
+    doc = _doc("orbitalFramer.json")
+    path = tmp_path / "mirror.json"
+    path.write_text(json.dumps(_edited(doc, instrument_pointing__constant_rotation=[1.0, 0, 0, 0, 1.0, 0, 0, 0, -1.0],
+                                       instrument_pointing__time_dependent_frames=[-1000, 1])))
+    with pytest.raises(IsdFormatError, match="'instrument_pointing.constant_rotation' is not a rotation"):
+        camera_from_isd_file(path)
