@@ -9,7 +9,9 @@ focal plane and no pointing needed); velocities, pointing angular velocities (ab
 ``time_dependent_frames`` are optional; the pointing's ``constant_rotation`` counts only when the block
 names its ``time_dependent_frames`` (usgscsm ignores it otherwise); positions and radii are km whatever
 a ``unit`` key says (a radii unit other than km gets an
-:class:`~lunarmap.errors.IsdConventionWarning`); files may be gzipped (``.json.gz``). Rolling-shutter
+:class:`~lunarmap.errors.IsdConventionWarning`); quaternions and constant rotations written with
+limited precision (up to 1e-3 off unit norm, 1e-5 off orthonormal) are read normalised, as usgscsm
+reads them, with the same warning; files may be gzipped (``.json.gz``). Rolling-shutter
 ``jitter`` is refused by name (not modelled). Distortion blocks are checked against the schemas of
 :mod:`lunarmap.orientation.distortion_schema`.
 
@@ -116,9 +118,15 @@ KNOWN_BODY_FRAMES = {
 }
 
 J2000 = 1
-# unit quaternions in files are normalised to ~1e-15; a larger error means corrupted data
+# unit quaternions and rotation matrices of full-precision writers (ALE, lunarmap) are unit / orthonormal
+# to ~1e-15 and are used as they are within these tolerances (bit for bit)
 _QUAT_NORM_TOL = 1e-6
 _ORTHO_TOL = 1e-9
+# writers printing 6 to 8 digits leave errors of ~1e-6: up to these tolerances the values are read
+# normalised (quaternions) or as the nearest rotation (matrices), with an IsdConventionWarning, as usgscsm
+# reads them (it normalises any quaternion); beyond them the data are refused as corrupted
+_QUAT_NORMALISE_TOL = 1e-3
+_ORTHO_PROJECT_TOL = 1e-5
 
 Array = NDArray[np.float64]
 
@@ -280,6 +288,57 @@ def _states(doc: _Doc, d: Mapping[str, Any], key: str) -> tuple[Array, Array, Ar
     return t, pos, vel
 
 
+def _unit_quaternions(doc: _Doc, q: Array, key: str) -> Array:
+    """Quaternion rows ``(n, 4)`` as unit quaternions, as usgscsm reads them.
+
+    Rows within :data:`_QUAT_NORM_TOL` of unit norm are returned as they are; rows off by up to
+    :data:`_QUAT_NORMALISE_TOL` (limited-precision writers) are normalised, with an
+    :class:`~lunarmap.errors.IsdConventionWarning`.
+
+    Raises
+    ------
+    IsdFormatError
+        A row is further off unit norm (corrupted data; usgscsm would normalise even those).
+    """
+    norm = np.linalg.norm(q, axis=1)
+    off = np.abs(norm - 1.0)
+    if np.any(off > _QUAT_NORMALISE_TOL):
+        i = int(np.argmax(off))
+        raise doc.error(key, f"must hold unit quaternions; row {i} has norm {norm[i]!r} (up to "
+                             f"{_QUAT_NORMALISE_TOL:g} off unit norm is read normalised)")
+    loose = off > _QUAT_NORM_TOL
+    if not loose.any():
+        return q
+    warn(f"{doc.where}: {key}: {int(loose.sum())} row(s) up to {off.max():.1e} off unit norm (limited "
+         f"precision); read normalised, as usgscsm reads them", IsdConventionWarning)
+    q = q.copy()
+    q[loose] /= norm[loose, None]
+    return q
+
+
+def _rotation_matrix(doc: _Doc, c: Array, key: str) -> Array:
+    """A row-major 3 x 3 rotation matrix as usgscsm reads it.
+
+    Within :data:`_ORTHO_TOL` of orthonormal it is returned as it is; up to
+    :data:`_ORTHO_PROJECT_TOL` (limited-precision writers) it is replaced by the nearest rotation
+    (polar decomposition), with an :class:`~lunarmap.errors.IsdConventionWarning`.
+
+    Raises
+    ------
+    IsdFormatError
+        Further from orthonormal, or a reflection (determinant < 0).
+    """
+    err = float(np.abs(c @ c.T - np.eye(3)).max())
+    if err > _ORTHO_PROJECT_TOL or np.linalg.det(c) < 0.0:
+        raise doc.error(key, "is not a rotation matrix (row-major 3x3)")
+    if err <= _ORTHO_TOL:
+        return c
+    u, _, vt = np.linalg.svd(c)
+    warn(f"{doc.where}: {key} is {err:.1e} from orthonormal (limited precision); read as the nearest "
+         f"rotation, as usgscsm reads it", IsdConventionWarning)
+    return u @ vt
+
+
 class _Rotations:
     """One rotation block: J2000 -> ``time_dependent_frames[0]`` samples, then the constant part.
 
@@ -297,11 +356,7 @@ class _Rotations:
                                       if "time_dependent_frames" in blk else [])
         self.times = _epochs(doc, blk, p)
         n = self.times.size
-        q = doc.array(blk, "quaternions", (n, 4), p)
-        norm = np.linalg.norm(q, axis=1)
-        if np.any(np.abs(norm - 1.0) > _QUAT_NORM_TOL):
-            i = int(np.argmax(np.abs(norm - 1.0)))
-            raise doc.error(p + "quaternions", f"must hold unit quaternions; row {i} has norm {norm[i]!r}")
+        q = _unit_quaternions(doc, doc.array(blk, "quaternions", (n, 4), p), p + "quaternions")
         self.rates_given = need_rates or blk.get("angular_velocities") is not None   # null: no rates (ALE)
         if self.rates_given:
             av = doc.array(blk, "angular_velocities", (n, 3), p)
@@ -309,10 +364,8 @@ class _Rotations:
             av = rates_from_samples(self.times, q)
         own_frames = self.time_dependent_frames[:1]
         if "constant_rotation" in blk and (self.time_dependent_frames or not constant_needs_frames):
-            c = doc.array(blk, "constant_rotation", (9,), p).reshape(3, 3)
-            if np.abs(c @ c.T - np.eye(3)).max() > _ORTHO_TOL or np.linalg.det(c) < 0.0:
-                raise doc.error(p + "constant_rotation", "is not a rotation matrix (row-major 3x3)")
-            self.constant_rotation = c
+            self.constant_rotation = _rotation_matrix(
+                doc, doc.array(blk, "constant_rotation", (9,), p).reshape(3, 3), p + "constant_rotation")
             self.constant_frames = (doc.int_list(blk, "constant_frames", p) if "constant_frames" in blk
                                     else own_frames)
         else:
