@@ -310,7 +310,7 @@ def test_geotiff_header_declaring_more_pixels_than_the_file_holds():
     assert time.perf_counter() - t < 2.0
 
 
-def _tiny_tiff(endian: str, samples: int, directories: int) -> bytes:
+def _tiny_tiff(endian: str, samples: int, directories: int, tile: int = 0) -> bytes:
     """A classic TIFF of 1 x 1 pixel directories each declaring ``samples`` samples per pixel (closed form)."""
     import struct
 
@@ -318,6 +318,10 @@ def _tiny_tiff(endian: str, samples: int, directories: int) -> bytes:
     out = bytearray(endian.encode() + struct.pack(e + "HI", 42, 8))
     tags = [(256, 3, 1, 1), (257, 3, 1, 1), (258, 3, 1, 8), (259, 3, 1, 1), (262, 3, 1, 1),
             (273, 4, 1, 0), (277, 3, 1, samples), (278, 3, 1, 1), (279, 4, 1, 1), (284, 3, 1, 2)]
+    if tile:   # TileWidth, TileLength, TileOffsets, TileByteCounts instead of the strip tags
+        tags = [t for t in tags if t[0] not in (273, 278, 279)] + [(322, 4, 1, tile), (323, 4, 1, tile),
+                                                                   (324, 4, 1, 0), (325, 4, 1, 1)]
+        tags.sort()
     for d in range(directories):
         start = len(out)
         nxt = start + 2 + 12 * len(tags) + 4 if d + 1 < directories else 0
@@ -358,3 +362,22 @@ def test_tiff_declaring_thousands_of_bands_is_refused_before_gdal_opens_it(tmp_p
 def _vm_hwm_mb() -> float:
     with open("/proc/self/status") as fh:
         return next(int(line.split()[1]) for line in fh if line.startswith("VmHWM")) / 1024
+
+
+@pytest.mark.parametrize("endian", ["II", "MM"])
+def test_tiff_declaring_blocks_larger_than_the_file_could_hold_is_refused(tmp_path, endian):
+    """Found by the issue-28 fuzzing after the band bound: a 6 kB tiled TIFF of 40 x 40 pixels grew the process by
+    84 MB (a window is decoded in whole tiles, whatever the image's size): 16,384 x 16,384 tiles of 3 bands in a
+    file of a few hundred bytes are refused before GDAL opens it; 256 x 256 tiles (the usual) are not."""
+    pytest.importorskip("rasterio")
+    from lunarmap.io.raster import open_image
+
+    path = tmp_path / "tiles.tif"
+    path.write_bytes(_tiny_tiff(endian, 3, 1, tile=16384))
+    with pytest.raises(CubeFormatError, match="blocks"):
+        open_image(path)
+    path.write_bytes(_tiny_tiff(endian, 3, 1, tile=256))
+    try:
+        open_image(path)
+    except CubeFormatError as err:     # GDAL may refuse the pixel-less tile, but not for its size
+        assert "blocks" not in str(err)
