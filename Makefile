@@ -37,10 +37,13 @@ $(VENV)/.installed-dev: pyproject.toml | $(VENV)/.installed
 	$(BIN)/python -m pip install --quiet -e ".[test,bench,docs,dev]"
 	touch $@
 
-# lint + import order of the library (ruff; configuration and the reasons for its ignores in pyproject.toml)
+# lint + import order (ruff) and type checking (mypy) of the library; configuration, the reasons for
+# ruff's ignores and mypy's per-library overrides in pyproject.toml
 lint: install
 	$(BIN)/python -m ruff --version >/dev/null 2>&1 || $(BIN)/python -m pip install --quiet "ruff>=0.6,<0.18"
+	$(BIN)/python -m mypy --version >/dev/null 2>&1 || $(BIN)/python -m pip install --quiet "mypy>=1.10"
 	$(BIN)/python -m ruff check lunarmap
+	$(BIN)/python -m mypy lunarmap
 
 # the documentation site: warnings (broken references, docstring errors, a failing notebook cell) fail it
 docs: $(VENV)/.installed-dev

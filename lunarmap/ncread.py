@@ -74,7 +74,7 @@ def _probe_fork(data: bytes, timeout: float) -> str:
                 resource.setrlimit(resource.RLIMIT_AS, (limit, resource.getrlimit(resource.RLIMIT_AS)[1]))
             nc = netCDF4.Dataset("probe", mode="r", memory=data)
             for v in nc.variables.values():
-                if v.dtype is str or getattr(v.datatype, "__class__", None).__name__ == "VLType":
+                if v.dtype is str or type(v.datatype).__name__ == "VLType":
                     v.set_auto_mask(False)
                     v[...]
             nc.close()

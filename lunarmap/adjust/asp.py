@@ -74,7 +74,7 @@ def asp_project(original: Any, adjustment: AspAdjustment, xyz: NDArray) -> tuple
     return original.ground_to_image(moved, within_image=False)
 
 
-def _grid(camera: Any, n: int, heights: tuple[float, ...]) -> NDArray:
+def _grid(camera: Any, n: int, heights: tuple[float, ...]) -> tuple[NDArray, NDArray]:
     line, sample = np.meshgrid(np.linspace(0.5, camera.n_lines - 0.5, n), np.linspace(0.5, camera.n_samples - 0.5, n),
                                indexing="ij")
     pts = [camera.image_to_ground(line.ravel(), sample.ravel(), height=h) for h in heights]

@@ -159,7 +159,7 @@ class FrameModel:
     """
 
     n_params = 6
-    param_names = ("w_x", "w_y", "w_z", "C_x", "C_y", "C_z")
+    param_names: tuple[str, ...] = ("w_x", "w_y", "w_z", "C_x", "C_y", "C_z")
 
     def __init__(self, R0: NDArray, f, k1=0.0, k2=0.0):
         self.R0 = np.asarray(R0, dtype=float)

@@ -165,7 +165,7 @@ class Factorizer:
 
     def __init__(self, backend: str = "auto"):
         self.backend = backend
-        self._cvx = None
+        self._cvx: _CvxoptCholmod | None = None
 
     def __call__(self, S: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
         """Factorise the symmetric positive-definite ``S``; returns ``solve(b)``.
@@ -182,7 +182,7 @@ class Factorizer:
             with _CVX_LOCK:   # one CHOLMOD state per Factorizer, created once
                 if self._cvx is None:
                     self._cvx = _CvxoptCholmod()
-            fn = self._cvx
+            fn: Callable[[sp.csr_matrix], Callable[[np.ndarray], np.ndarray]] = self._cvx
         else:
             fn = {"cholespy": _cholespy, "splu": _splu, "dense": _dense}[backend]
         try:

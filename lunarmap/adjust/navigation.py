@@ -25,6 +25,8 @@ so the attitude observation is the correction relative to the reference attitude
 
 from __future__ import annotations
 
+from typing import Sequence
+
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
@@ -61,7 +63,8 @@ class NavigationObservations:
         A label of every orbit (e.g. the run's navigation groups), for reports; default the orbit index.
     """
 
-    def __init__(self, observed, sigma, orbit, s=None, offset: str = "fixed", drift: str = "fixed",
+    def __init__(self, observed, sigma, orbit, s=None, offset: str | Sequence[str] | NDArray = "fixed",
+                 drift: str | Sequence[str] | NDArray = "fixed",
                  offset_sigma=None, drift_sigma=None, name: str = "navigation", orbit_names=None):
         obs = np.asarray(observed, dtype=float)
         n, p = obs.shape

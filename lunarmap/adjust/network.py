@@ -125,7 +125,7 @@ class ControlNetwork:
             (self.xyz.shape == (n_pt, 3), f"xyz has {self.xyz.shape[0]} rows for {n_pt} points"),
             (self.measure_image.shape == (n_m,) and self.line_sample.shape == (n_m, 2),
              "measure_point, measure_image and line/sample must have the same length"),
-            (self.image_name.shape == (n_img,), "image_name and image_id must have the same length"),
+            (self.image_name is not None and self.image_name.shape == (n_img,), "image_name and image_id must have the same length"),
             (np.unique(self.point_id).size == n_pt, "point ids repeat"),
             (np.unique(self.image_id).size == n_img, "image ids repeat"),
             (np.all(np.isin(self.point_type, POINT_TYPES)),
@@ -184,6 +184,7 @@ class ControlNetwork:
         c = self.indices("control")
         if c.size == 0:
             return None
+        assert self.xyz_cov is not None, "control points without covariance"     # _check requires it
         cov = self.xyz_cov[c]
         if representation == "covariance":
             return PointPriors(c, self.xyz[c], cov=cov)
@@ -266,6 +267,7 @@ def merge_networks(*networks: ControlNetwork) -> ControlNetwork:
     image_ids: list[str] = []
     names: dict[str, str] = {}
     for net in networks:
+        assert net.image_name is not None       # set by __post_init__
         for i, n in zip(net.image_id, net.image_name):
             if i not in names:
                 names[i] = n
@@ -316,7 +318,7 @@ def network_to_dataset(net: ControlNetwork) -> xr.Dataset:
             "sigma_line": ("measure", net.measure_sigma[:, 0], {"units": "pixel"}),
             "sigma_sample": ("measure", net.measure_sigma[:, 1], {"units": "pixel"}),
             "image_id": ("image", net.image_id.astype(object)),
-            "image_name": ("image", net.image_name.astype(object)),
+            "image_name": ("image", np.asarray(net.image_name).astype(object)),
         },
         coords={"axis": ["x", "y", "z"], "axis2": ["x", "y", "z"]},
         attrs={**{k: v for k, v in net.attrs.items() if isinstance(v, (str, int, float))},

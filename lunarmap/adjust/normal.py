@@ -140,6 +140,7 @@ def linearize(problem: BundleProblem, state: AdjustmentState, structure: SchurSt
     # whitened in place (fresh, writable, contiguous float arrays from the model; copied otherwise)
     Ac = np.require(Jc, np.float64, ["C", "W"])
     Ap = np.require(Jp, np.float64, ["C", "W"])
+    assert problem.cam_param_free is not None      # set by BundleProblem.__post_init__
     r, cost = whiten(np.ascontiguousarray(x, np.float64), o.xy, ws, Ac, Ap, problem.cam_param_free, fixed_pt,
                      structure.cam_idx, structure.pt_idx)
     U, V, W, gc, gp = normal_blocks(Ac, Ap, r, structure.cam_idx, structure.pt_idx, structure.n_cam,
@@ -178,6 +179,7 @@ def reduced_system(lin: Linearization, structure: SchurStructure, terms: Terms, 
         blocks, Fg, Vinv = structure.schur(lin.U, lin.V, lin.Ac, lin.Ap, lin.gp, mu)
         rhs_c = -lin.gc + Fg.ravel()
     else:
+        assert lin.W is not None        # formed on the NumPy path
         V = lin.V.copy()
         dV = np.clip(np.diagonal(lin.V, axis1=1, axis2=2), 1e-6, 1e32)
         V[:, [0, 1, 2], [0, 1, 2]] += mu * dV
@@ -224,6 +226,7 @@ def back_substitute(lin: Linearization, structure: SchurStructure, Vinv: NDArray
     dc = dred[:terms.n_cam_red].reshape(-1, p)
     if structure.compiled:
         return structure.back_substitute(lin.Ac, lin.Ap, Vinv, lin.gp, dc)
+    assert lin.W is not None        # formed on the NumPy path
     Wdc = np.einsum("nij,ni->nj", lin.W, dc[o.cam_idx])
     t = -lin.gp - structure.pt_agg @ Wdc
     return np.einsum("nij,nj->ni", Vinv, t)

@@ -552,6 +552,7 @@ def posterior_precision(result, method: str = "auto", redundancy: bool = False,
                           method=inverse_method)
     Qblk, Qextra, Q = inv.Qblk, inv.Qextra, inv.Q
     kern = _point_cov_kernel
+    assert kern is not None         # compiled structure: numba is there
     Cpp, red = kern(Qblk, Vinv, np.ascontiguousarray(lin.Ac), np.ascontiguousarray(lin.Ap), st.cam_idx,
                     st.pt_order, st.pt_start, st.pair_start, st.pair_blk, st.active, st.diag_block, st.max_track,
                     bool(redundancy))

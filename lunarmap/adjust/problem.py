@@ -146,6 +146,7 @@ class PointPriors:
         W = np.zeros((k, 3, 3))
         free = ~self.fixed
         if self.cov is None:
+            assert self.sigma is not None, "priors without sigma or cov"      # _validate
             W[free] = np.eye(3) / self.sigma[free][:, :, None]
         elif free.any():
             L = np.linalg.cholesky(self.cov[free])
@@ -289,6 +290,7 @@ class BundleProblem:
         return fixed
 
     def n_unknowns(self) -> int:
+        assert self.cam_param_free is not None      # set by __post_init__
         n = int(self.cam_param_free.sum()) + 3 * int((~self.point_fixed()).sum())
         return n + sum(int(np.sum(t.extra_free())) for t in self.terms)
 
@@ -305,6 +307,7 @@ class BundleProblem:
         has_term = np.zeros(self.n_images, dtype=bool)
         for t in self.terms:
             has_term |= t.observed_images()
+        assert self.cam_param_free is not None      # set by __post_init__
         free_img = self.cam_param_free.any(axis=1)
         lonely = np.nonzero((per_img == 0) & free_img & ~has_term)[0]
         if lonely.size:

@@ -122,7 +122,7 @@ def _etree(A: sp.csr_matrix) -> NDArray[np.int64]:
 def _postorder(parent: NDArray[np.int64]) -> NDArray[np.int64]:
     n = parent.size
     children: list[list[int]] = [[] for _ in range(n)]
-    roots = []
+    roots: list[int] = []
     for v in range(n):
         (children[parent[v]] if parent[v] >= 0 else roots).append(v)
     order = []
@@ -222,7 +222,9 @@ def symbolic_factor(S: sp.spmatrix, node_ptr: NDArray[np.int64], last_nodes: NDA
     for j in range(n_nodes):
         parts = [up.indices[up.indptr[j]:up.indptr[j + 1]].astype(np.int64)]
         for c in children[j]:
-            parts.append(struct[c][struct[c] > j])   # type: ignore[index]
+            sc = struct[c]          # children come first in the postorder
+            assert sc is not None
+            parts.append(sc[sc > j])
         struct[j] = np.unique(np.concatenate(parts)) if len(parts) > 1 else np.sort(parts[0])
     # fundamental supernodes: j joins j + 1 when j + 1 is its parent and struct(j) = {j + 1} + struct(j + 1)
     psizes = sizes[node_order]
@@ -242,6 +244,7 @@ def symbolic_factor(S: sp.spmatrix, node_ptr: NDArray[np.int64], last_nodes: NDA
     rows_nodes: list[NDArray[np.int64]] = []
     for a, b in sn:
         r = struct[b - 1]
+        assert r is not None
         if merged:
             pa, pb = merged[-1]
             pr = rows_nodes[-1]

@@ -132,6 +132,7 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
     factorize = Factorizer(opt.backend)
     terms = Terms(problem)
     extra0 = np.concatenate([t.initial_extra() for t in problem.terms]) if problem.terms else np.zeros(0)
+    assert problem.cam_param_free is not None      # set by BundleProblem.__post_init__
     free_red = np.concatenate([problem.cam_param_free.ravel()] +
                               [np.asarray(t.extra_free(), bool) for t in problem.terms])
     state = AdjustmentState(problem.cam_params.copy(), problem.points.copy(), extra0.copy(),

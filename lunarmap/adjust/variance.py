@@ -100,7 +100,7 @@ def image_variance_factors(result: AdjustmentResult, groups: NDArray[np.int64],
         bad = int(np.argmax(r <= 0.5))
         raise AdjustmentInputError(f"image observation group {bad} has redundancy {r[bad]:.2f}: its variance "
                                    "factor cannot be estimated")
-    return vpv / r, r
+    return vpv / r, r.astype(np.float64)
 
 
 def estimate_image_variances(problem: BundleProblem, groups: NDArray[np.int64], estimate: NDArray[np.bool_],
@@ -216,7 +216,7 @@ def observation_groups(problem: BundleProblem, image_group: NDArray | None = Non
         names += list(image_group_names) if image_group_names is not None else [f"image {u}" for u in uniq]
     k = 0 if problem.priors is None else problem.priors.idx.size
     ctl = -np.ones(k, np.int64)
-    if control and k:
+    if control and k and problem.priors is not None:
         weighted = ~problem.priors.fixed
         if weighted.any():
             ctl[weighted] = len(names)
@@ -552,7 +552,7 @@ def _dense_design(result: AdjustmentResult, groups: ObservationGroups) -> tuple[
     cols = n_red + o.pt_idx[img][:, None] * 3 + np.arange(3)
     J[rows[:, :, None], cols[:, None, :]] = lin.Ap[img]
     g = [np.repeat(groups.image[img], 2)]
-    if m_t:
+    if m_t and lin.Jx is not None:
         J[m_img:m_img + m_t, :n_red] = lin.Jx.toarray()
         g += list(groups.terms)
     if m_p:

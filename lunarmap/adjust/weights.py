@@ -132,6 +132,7 @@ def reweighted_problem(base: BundleProblem, w: Weights, cam_params: NDArray | No
     priors = base.priors
     if priors is not None and not np.all(w.control_sigma == 1.0):
         f = w.control_sigma
+        assert priors.sigma is not None         # filled by PointPriors._validate
         priors = PointPriors(priors.idx, priors.xyz, priors.sigma * f[:, None],
                              None if priors.cov is None else priors.cov * (f * f)[:, None, None])
     drop = w.dropped_points.copy()

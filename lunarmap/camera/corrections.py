@@ -133,14 +133,14 @@ def pinhole_image(v: Array, f: Array, distortion: Distortion | Sequence[tuple[Di
     for dist, m in groups:
         if not np.any(m):
             continue
-        if jacobian:
-            dx[m], dy[m], jd[m] = dist.distort_with_jacobian(ux[m], uy[m])   # type: ignore[index]
+        if jd is not None:
+            dx[m], dy[m], jd[m] = dist.distort_with_jacobian(ux[m], uy[m])
         else:
             dx[m], dy[m] = dist.distort(ux[m], uy[m])
     A = np.asarray(A, dtype=float)
     d = np.stack([dx, dy], axis=-1)
     pix = (np.einsum("nij,nj->ni", A, d) if A.ndim == 3 else d @ A.T) + b
-    if not jacobian:
+    if jd is None:
         return pix, None
     # d(ux, uy)/dv = f / v_z [[1, 0, -v_x / v_z], [0, 1, -v_y / v_z]]
     dp = np.zeros((n, 2, 3))
@@ -388,6 +388,13 @@ class LineScanCorrections:
     correlated: give them a-priori sigmas (navigation observations) or fix some.
     """
 
+    # set by _init_polynomial
+    sensor: Any
+    degree: int
+    n_params: int
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+
     def __init__(self, camera: Any, degree: int = 1) -> None:
         _init_polynomial(self, camera, degree, "line-scan")
         t0, t1 = camera.image_time(np.array([0.0, float(camera.interior.n_lines)]))
@@ -559,6 +566,13 @@ class PushFrameCorrections:
     degree : int
         Polynomial degree 0, 1 or 2.
     """
+
+    # set by _init_polynomial
+    sensor: Any
+    degree: int
+    n_params: int
+    names: tuple[str, ...]
+    units: tuple[str, ...]
 
     def __init__(self, camera: Any, degree: int = 1) -> None:
         _init_polynomial(self, camera, degree, "push-frame")

@@ -92,10 +92,10 @@ def csm_image_support(isd: ImageSupport) -> ImageSupport:
     candidates = [("transverse", transverse, (0.0, 0.0), error_px(transverse, (0.0, 0.0))),
                   ("radtan", radtan, shift, error_px(radtan, shift))]
     name, model_fit, shift, err = min(candidates, key=lambda c: float(np.nanmax(c[3])))
-    if name == "transverse":
-        out.optical_distortion = {"transverse": {"x": model_fit.cx.tolist(), "y": model_fit.cy.tolist()}}
-    else:
-        k = [model_fit.k1, model_fit.k2, model_fit.p1, model_fit.p2, model_fit.k3]
+    if name == "transverse":      # model_fit is transverse
+        out.optical_distortion = {"transverse": {"x": transverse.cx.tolist(), "y": transverse.cy.tolist()}}
+    else:                         # model_fit is radtan
+        k = [radtan.k1, radtan.k2, radtan.p1, radtan.p2, radtan.k3]
         out.optical_distortion = {"radtan": {"coefficients": [float(v) for v in k]}}
         # radtan is centred on the focal-plane origin: move the optical axis there (x' = x - shift)
         f2l, f2s = list(out.focal2pixel_lines), list(out.focal2pixel_samples)

@@ -10,15 +10,14 @@ import os
 
 from ..orientation.cube import image_support_from_cube
 from .factory import camera_from_isd
-from .frame import FrameCamera
-from .linescan import LineScanCamera
+from .sensor import SensorModel
 from .shape import Shape
 
 __all__ = ["camera_from_cube"]
 
 
 def camera_from_cube(path: str | os.PathLike[str], shape: Shape | None = None, distortion: bool = True,
-                     image_size: tuple[int, int] | None = None) -> FrameCamera | LineScanCamera:
+                     image_size: tuple[int, int] | None = None) -> SensorModel:
     """The rigorous camera of a ``spiceinit``-ed ISIS cube, from its tables alone.
 
     Parameters

@@ -264,7 +264,7 @@ class RadialDistortion(Distortion):
 
     name = "radial"
 
-    def __init__(self, coefficients: Sequence[float]) -> None:
+    def __init__(self, coefficients: Sequence[float] | NDArray) -> None:
         k = [float(c) for c in coefficients]
         if len(k) > 3:
             raise InvalidInputError(f"radial distortion takes at most 3 coefficients (OD_K), got {len(k)}")
@@ -331,7 +331,7 @@ class KaguyaLismDistortion(Distortion):
 
     name = "kaguyalism"
 
-    def __init__(self, x: Sequence[float], y: Sequence[float], boresight_x: float = 0.0,
+    def __init__(self, x: Sequence[float] | NDArray, y: Sequence[float] | NDArray, boresight_x: float = 0.0,
                  boresight_y: float = 0.0) -> None:
         ax = [float(c) for c in x]
         ay = [float(c) for c in y]
@@ -495,7 +495,7 @@ class LunarOrbiterDistortion(Distortion):
     name = "lunarorbiter"
 
     def __init__(self, perspective_x: float, perspective_y: float, center_point_x: float, center_point_y: float,
-                 coefficients: Sequence[float] = (0.0, 0.0)) -> None:
+                 coefficients: Sequence[float] | NDArray = (0.0, 0.0)) -> None:
         k = [float(c) for c in coefficients]
         if len(k) > 3 or (len(k) == 3 and k[2] != 0.0):
             raise InvalidInputError(f"lunarorbiter distortion uses OD_K = (k0, k1) (a third value must be 0), got {k}")
@@ -550,8 +550,8 @@ class ApolloMetricDistortion(Distortion):
 
     name = "apollometric"
 
-    def __init__(self, principal_point: Sequence[float] = (0.0, 0.0), coefficients: Sequence[float] = (0.0,) * 3,
-                 decentering: Sequence[float] = (0.0, 0.0, 0.0)) -> None:
+    def __init__(self, principal_point: Sequence[float] | NDArray = (0.0, 0.0), coefficients: Sequence[float] | NDArray = (0.0,) * 3,
+                 decentering: Sequence[float] | NDArray = (0.0, 0.0, 0.0)) -> None:
         pp = [float(c) for c in principal_point]
         k = [float(c) for c in coefficients]
         j = [float(c) for c in decentering]

@@ -65,7 +65,7 @@ class TransverseDistortion(Distortion):
 
     name = "transverse"
 
-    def __init__(self, x: Sequence[float], y: Sequence[float]) -> None:
+    def __init__(self, x: Sequence[float] | NDArray, y: Sequence[float] | NDArray) -> None:
         cx = [float(c) for c in np.atleast_1d(x)]
         cy = [float(c) for c in np.atleast_1d(y)]
         if len(cx) > 10 or len(cy) > 10:
@@ -133,7 +133,7 @@ class RadTanDistortion(Distortion):
 
     name = "radtan"
 
-    def __init__(self, coefficients: Sequence[float], focal_length: float) -> None:
+    def __init__(self, coefficients: Sequence[float] | NDArray, focal_length: float) -> None:
         k = [float(c) for c in coefficients]
         if len(k) != 5:
             raise InvalidInputError(f"radtan distortion takes 5 coefficients (k1, k2, p1, p2, k3), got {len(k)}")

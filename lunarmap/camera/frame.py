@@ -302,7 +302,7 @@ class _CameraModel:
         h = np.broadcast_to(h, line.shape)
         return intersect_ellipsoid(origins, dirs, self.shape.axes_at_height(h), on_miss=on_miss)
 
-    def _project(self, v: Array) -> tuple[Array, Array, Array]:
+    def _project(self, v: Array) -> tuple[Array, Array, NDArray[np.bool_]]:
         """Image coordinates of sensor-frame vectors; also the validity mask (in front)."""
         f = self.interior.focal_length
         in_front = v[..., 2] * f > 0.0   # a negative focal length looks along -z (ISIS z direction -1)

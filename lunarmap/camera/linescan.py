@@ -108,7 +108,7 @@ class LineTimes:
         return cls([0.0], [t0], [dt])
 
     @classmethod
-    def from_line_scan_rate(cls, rows: Sequence[Sequence[float]], time_offset: float = 0.0) -> "LineTimes":
+    def from_line_scan_rate(cls, rows: Sequence[Sequence[float]] | NDArray, time_offset: float = 0.0) -> "LineTimes":
         """From ALE/usgscsm ``line_scan_rate`` rows ``[line, time, rate]``.
 
         ``line`` is the ISIS-convention line (1-based pixel centres, so 0.5 is
@@ -268,7 +268,7 @@ class LineScanCamera(_CameraModel):
             raise InvalidInputError("the exterior orientation does not cover the image's exposure times")
         return lo, hi
 
-    def _build_table(self) -> dict[str, object]:
+    def _build_table(self) -> dict[str, Any]:
         table = self._table
         if table is not None:
             return table
@@ -277,7 +277,7 @@ class LineScanCamera(_CameraModel):
                 self._table = self._new_table()
             return self._table
 
-    def _new_table(self) -> dict[str, object]:
+    def _new_table(self) -> dict[str, Any]:
         """The per-line EO table (built once per camera by :meth:`_build_table`)."""
         lo, hi = self._line_range()
         n_nodes = int(np.ceil(hi - lo)) + 1
@@ -304,7 +304,7 @@ class LineScanCamera(_CameraModel):
             "coarse_idx": coarse_idx, "normals": normals, "offsets": offsets,
         }
 
-    def _table_error_px(self, lines: Array, pos: Array, rot: Array) -> float:
+    def _table_error_px(self, lines: NDArray, pos: Array, rot: Array) -> float:
         """Upper bound (pixels) of the image error of linear table interpolation vs the EO's own.
 
         The EO is evaluated half-way between table nodes, where linear
@@ -324,7 +324,7 @@ class LineScanCamera(_CameraModel):
         closest = max(float(np.linalg.norm(pos, axis=-1).min()) - top, 1_000.0)
         return float(rot_err / ifov + pos_err / (ifov * closest))
 
-    def _residual_from(self, pt: Array, pr: Array, g: Array) -> tuple[Array, Array, Array]:
+    def _residual_from(self, pt: Array, pr: Array, g: Array) -> tuple[Array, Array, NDArray[np.bool_]]:
         """Image-line residual, sample and validity of points ``g`` given positions and R^T rows."""
         d = g - pt
         v = np.empty_like(d)
@@ -341,11 +341,11 @@ class LineScanCamera(_CameraModel):
         node = tab["pairs"][i]
         return node[:, :12] + (s - i)[:, None] * node[:, 12:]
 
-    def _residual_table(self, tab: dict, g: Array, line: Array) -> tuple[Array, Array, Array]:
+    def _residual_table(self, tab: dict, g: Array, line: Array) -> tuple[Array, Array, NDArray[np.bool_]]:
         row = self._table_rows(tab, line)
         return self._residual_from(row[:, :3], row[:, 3:], g)
 
-    def _residual_exact(self, g: Array, line: Array) -> tuple[Array, Array, Array]:
+    def _residual_exact(self, g: Array, line: Array) -> tuple[Array, Array, NDArray[np.bool_]]:
         t = self.image_time(line)
         pos = self.eo.position_at(t)
         q = self.eo.quaternion_at(t)
@@ -358,7 +358,7 @@ class LineScanCamera(_CameraModel):
         line = np.full(n, np.nan)
         sample = np.full(n, np.nan)
         ok = np.zeros(n, dtype=bool)
-        cidx: NDArray[np.intp] = tab["coarse_idx"]  # type: ignore[assignment]
+        cidx: NDArray[np.intp] = tab["coarse_idx"]
         # 1. bracket: sign of the distance to the coarse grid's exposure planes.
         dist = g @ tab["normals"].T - tab["offsets"]
         pos_side = dist > 0.0

@@ -174,7 +174,7 @@ class PushFrameCamera(_CameraModel):
         fl = line - k * h
         if self.timing.framelets_flipped:
             fl = h - fl
-        return k, self.exposure_index(k), fl + self._offset
+        return k, self.exposure_index(k), np.asarray(fl + self._offset, dtype=np.float64)
 
     def exposure_index(self, k: ArrayLike) -> NDArray[np.intp]:
         """Exposure order of image framelets ``k`` (reversed images expose their last framelet first)."""
@@ -198,7 +198,7 @@ class PushFrameCamera(_CameraModel):
     def image_time(self, line: ArrayLike) -> Array:
         """Mid-exposure time (s after ``eo.epoch``) of the framelets of image lines."""
         _, j, _ = self.framelet_of_line(line)
-        return self.framelet_times[j]
+        return np.asarray(self.framelet_times[j], dtype=np.float64)
 
     def sensor_position(self, line: ArrayLike, sample: ArrayLike) -> Array:
         """Sensor position (metres, body-fixed) at the exposure of image coordinates; shape ``(..., 3)``."""

@@ -26,7 +26,7 @@ RFM (or any sensor)        6 affine image-space parameters (seeds/001 Eq. 13)
 
 from __future__ import annotations
 
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -57,12 +57,12 @@ class SensorModel(Protocol):
     @property
     def reference_radius(self) -> float: ...
 
-    def ground_to_image(self, xyz: ArrayLike, on_miss: str = "nan",
+    def ground_to_image(self, xyz: ArrayLike, on_miss: Literal["raise", "nan"] = "nan",
                         within_image: bool = True) -> tuple[Array, Array]:
         """``(line, sample)`` pixels of body-fixed points ``(..., 3)`` metres; NaN where not seen."""
 
     def image_to_ground(self, line: ArrayLike, sample: ArrayLike, height: ArrayLike = 0.0,
-                        dtm: Any = None, on_miss: str = "raise") -> Array:
+                        dtm: Any = None, on_miss: Literal["raise", "nan"] = "raise") -> Array:
         """Body-fixed points ``(..., 3)`` metres seen at image coordinates, at ``height`` metres or on a DTM."""
 
     def rays(self, line: ArrayLike, sample: ArrayLike) -> tuple[Array, Array]:

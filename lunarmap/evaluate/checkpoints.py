@@ -83,7 +83,7 @@ def track_basis(xyz: ArrayLike, azimuth_deg: float) -> Array:
 
 
 def check_point_errors(estimated: ArrayLike, reference: ArrayLike, covariance: ArrayLike | None = None, *,
-                       names: Sequence[str] | None = None, along_track: float | None = None,
+                       names: Sequence[str] | NDArray | None = None, along_track: float | None = None,
                        sensors: Mapping[str, Any] | Sequence[Any] | None = None,
                        radius: float = MOON_RADIUS, skipped: Sequence[str] = ()) -> xr.Dataset:
     """Errors of estimated points against reference coordinates (see the module docstring).

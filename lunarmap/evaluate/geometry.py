@@ -127,7 +127,34 @@ class ViewGeometry:
     pixel_width, pixel_height, inside
     """
 
-    def __init__(self, **fields: Array) -> None:
+    # the fields view_geometry sets (the instance's __dict__)
+    xyz: Array
+    line: Array
+    sample: Array
+    et: Array
+    sensor_position: Array
+    sun_position: Array
+    emission: Array
+    incidence: Array
+    phase: Array
+    subsolar_ground_azimuth: Array
+    sensor_ground_azimuth: Array
+    subsolar_azimuth: Array
+    north_azimuth: Array
+    off_nadir: Array
+    slew: Array
+    slant_range: Array
+    altitude: Array
+    pixel_width: Array
+    pixel_height: Array
+    normal: Array
+    to_sensor: Array
+    to_sun: Array
+    east: Array
+    north: Array
+    inside: NDArray[np.bool_]
+
+    def __init__(self, **fields: NDArray) -> None:
         self.__dict__.update(fields)
 
     @property

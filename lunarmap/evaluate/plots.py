@@ -66,11 +66,11 @@ def _finish(fig: Any, path: str | os.PathLike[str] | None) -> Any:
 
 def power_law_fit(x: Sequence[float], y: Sequence[float]) -> tuple[float, float]:
     """``y = a x^b`` by least squares in log-log: returns ``(a, b)``."""
-    x, y = np.asarray(x, float), np.asarray(y, float)
-    ok = (x > 0) & (y > 0) & np.isfinite(x) & np.isfinite(y)
+    xa, ya = np.asarray(x, float), np.asarray(y, float)
+    ok = (xa > 0) & (ya > 0) & np.isfinite(xa) & np.isfinite(ya)
     if ok.sum() < 2:
         raise EvaluationInputError("a power-law fit needs two or more positive values")
-    b, log_a = np.polyfit(np.log(x[ok]), np.log(y[ok]), 1)
+    b, log_a = np.polyfit(np.log(xa[ok]), np.log(ya[ok]), 1)
     return float(np.exp(log_a)), float(b)
 
 
@@ -168,7 +168,7 @@ def plot_pair_quantity(pairs: xr.Dataset, values: Sequence[float] | xr.DataArray
     ``values`` is aligned with ``pairs.pair`` (a DataArray over ``pair`` is aligned by name).
     """
     if quantity not in pairs:
-        raise EvaluationInputError(f"pair geometry has no {quantity!r}; it has {sorted(pairs.data_vars)}")
+        raise EvaluationInputError(f"pair geometry has no {quantity!r}; it has {sorted(map(str, pairs.data_vars))}")
     y = values.sel(pair=pairs.pair).values if isinstance(values, xr.DataArray) else np.asarray(values, float)
     x = pairs[quantity].values
     if y.shape != x.shape:

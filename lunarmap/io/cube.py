@@ -29,7 +29,7 @@ import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import dask.array as da
 import numpy as np
@@ -369,12 +369,12 @@ class IsisCube:
             val[classify(raw) != 0] = np.nan
             return val
 
-        data = self.raw(chunks).map_blocks(convert, dtype=out)
+        data = da.map_blocks(convert, self.raw(chunks), dtype=out)
         return self._wrap(data, "dn", {"base": base, "multiplier": mult})
 
     def special(self, chunks: Any = None) -> xr.DataArray:
         """Special-pixel codes ``(band, line, sample)`` int8, lazy: 0 valid, 1 Null, 2 Lrs, 3 Lis, 4 His, 5 Hrs."""
-        data = self.raw(chunks).map_blocks(classify, dtype=np.int8)
+        data = da.map_blocks(classify, self.raw(chunks), dtype=np.int8)
         return self._wrap(data, "special", {"flag_values": list(SPECIAL_CODES.values()),
                                             "flag_meanings": " ".join(SPECIAL_CODES)})
 
@@ -642,6 +642,7 @@ class CubeWriter:
             os.fsync(self._fd)
             os.close(self._fd)
             self._fd = -1
+            assert self._tmp is not None        # set by __enter__
             os.replace(self._tmp, self.path)
         except OSError as err:
             self.abort()
@@ -705,7 +706,7 @@ def _encode(data: ArrayLike, special: ArrayLike | None, pixel_type: str, base: f
     encode_special(raw, codes)
     if dtype.kind != "f" and np.any(classify(raw)[good] != 0):
         raise CubeFormatError(f"writing {os.fspath(path)}: some data values fall on {pixel_type}'s special pixels")
-    order = "<" if byte_order.lower() == "lsb" else ">"
+    order: Literal["<", ">"] = "<" if byte_order.lower() == "lsb" else ">"
     return raw.astype(raw.dtype.newbyteorder(order))
 
 

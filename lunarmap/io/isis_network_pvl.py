@@ -147,12 +147,12 @@ def read_pvl_network(path: str | os.PathLike[str], images: list[str] | None = No
     isis_type = np.asarray(cols["isis_point_type"], np.int8)
     ignore = np.asarray(cols["ignore"], bool)
     surf = np.asarray(cols["apriori_surface_source"], np.int8)
-    ptype = np.where(isis_type == _FREE, 0, 1).astype(np.int8)
-    ptype[(isis_type == _FREE) & ignore & (surf == _REFERENCE)] = 2
+    type_code = np.where(isis_type == _FREE, 0, 1).astype(np.int8)
+    type_code[(isis_type == _FREE) & ignore & (surf == _REFERENCE)] = 2
     xyz_cov = np.asarray(cols["xyz_cov"], float).reshape(n_pt, 3, 3)
     xyz_cov[(isis_type == _FIXED) & np.all(np.isnan(xyz_cov), axis=(1, 2))] = 0.0
     points = {k: np.asarray(v) for k, v in cols.items()}
-    points.update(point_type=ptype, xyz_cov=xyz_cov, xyz=np.asarray(cols["xyz"], float).reshape(n_pt, 3),
+    points.update(point_type=type_code, xyz_cov=xyz_cov, xyz=np.asarray(cols["xyz"], float).reshape(n_pt, 3),
                   adjusted_xyz=np.asarray(cols["adjusted_xyz"], float).reshape(n_pt, 3),
                   adjusted_cov=np.asarray(cols["adjusted_cov"], float).reshape(n_pt, 3, 3))
     m_point = np.asarray(meas.pop("measure_point"), np.int64)

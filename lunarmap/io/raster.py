@@ -309,7 +309,8 @@ def _tiff_layout(path: str) -> tuple[int, int] | None:
         else:
             return None
         count_fmt, entry_fmt, entry_size, next_fmt = (("Q", "HHQQ", 20, "Q") if big else ("H", "HHII", 12, "I"))
-        total, largest, seen = 0, 0, set()
+        total, largest = 0, 0
+        seen: set[int] = set()
         # a directory is at least one entry long: the chain cannot be longer than the file allows
         while offset and offset not in seen and len(seen) < size // entry_size + 1:
             seen.add(offset)

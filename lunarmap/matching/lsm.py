@@ -158,7 +158,8 @@ def lsm_match(image1: NDArray, image2: NDArray, line1: Array, sample1: Array, li
         norm = np.hypot(epipolar[:, 0], epipolar[:, 1])
         good = np.isfinite(norm) & (norm > 0.0)
         direction = np.where(good[:, None], epipolar / np.where(good, norm, 1.0)[:, None], 0.0)
-    out = LsmResult(*(np.full(n, np.nan) for _ in range(5)), params=np.full((n, 8), np.nan),
+    nan = [np.full(n, np.nan) for _ in range(5)]
+    out = LsmResult(nan[0], nan[1], nan[2], nan[3], nan[4], params=np.full((n, 8), np.nan),
                     iterations=np.zeros(n, dtype=np.int64), converged=np.zeros(n, dtype=bool),
                     relief=np.full((n, 3), np.nan))
     for b0 in range(0, n, _BATCH):

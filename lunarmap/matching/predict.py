@@ -53,6 +53,7 @@ def _ground(sensor: SensorModel, line: Array, sample: Array, height: Array | Non
             dtm: xr.DataArray | None) -> Array:
     if dtm is not None:
         return sensor.image_to_ground(line, sample, dtm=dtm, on_miss="nan")
+    assert height is not None, "_ground needs a height or a DTM"
     return sensor.image_to_ground(line, sample, height=height, on_miss="nan")
 
 

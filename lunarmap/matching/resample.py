@@ -165,6 +165,7 @@ def bicubic(image: NDArray, line: ArrayLike, sample: ArrayLike) -> Array:
         row += flat[b + 3] * wx[3]
         row *= wy[a]
         out = row if out is None else np.add(out, row, out=out)
+    assert out is not None          # four stencil rows
     out[~inside] = np.nan
     return out.reshape(inside.shape if shape is None else shape)
 
@@ -200,12 +201,13 @@ def bicubic_with_gradient(image: NDArray, line: ArrayLike, sample: ArrayLike) ->
         v0, v1, v2, v3 = flat[b], flat[b + 1], flat[b + 2], flat[b + 3]
         row = v0 * wx[0] + v1 * wx[1] + v2 * wx[2] + v3 * wx[3]
         drow = v0 * dwx[0] + v1 * dwx[1] + v2 * dwx[2] + v3 * dwx[3]
-        if val is None:
+        if val is None or d_line is None or d_sample is None:      # the first row sets all three
             val, d_line, d_sample = row * wy[a], row * dwy[a], drow * wy[a]
         else:
             val += row * wy[a]
             d_line += row * dwy[a]
             d_sample += drow * wy[a]
+    assert val is not None and d_line is not None and d_sample is not None     # four stencil rows
     bad = ~inside
     val[bad] = np.nan
     d_line[bad] = np.nan

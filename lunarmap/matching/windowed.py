@@ -22,7 +22,7 @@ from __future__ import annotations
 import itertools
 import threading
 from collections import OrderedDict
-from typing import Any, Sequence
+from typing import Any, Sequence, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -130,7 +130,7 @@ class WindowedImage:
     def __init__(self, source: Any, saturation: float | None = None, smooth: float = 0.0,
                  pyramid: Pyramid | None = None, *, _base: "WindowedImage | None" = None, _level: int = 0) -> None:
         self.source: WindowSource = open_source(source)
-        self.shape = tuple(int(v) for v in self.source.shape)
+        self.shape = cast("tuple[int, int]", tuple(int(v) for v in self.source.shape))    # 2-D sources
         self.name = getattr(self.source, "name", "image")
         self.saturation = saturation
         self.smooth = float(smooth)

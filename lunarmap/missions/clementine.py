@@ -67,9 +67,9 @@ def block_inputs(sb: SimulatedBlock, offset: str = "observed",
     xyz[sb.check] = sb.true_points[sb.check]
     cov = np.full((n, 3, 3), np.nan)
     cov[sb.control] = np.eye(3) * sb.control_sigma ** 2
-    net = ControlNetwork(point_id=[f"P{i}" for i in range(n)], point_type=kind, xyz=xyz, measure_point=m.pt_idx,
+    net = ControlNetwork(point_id=np.array([f"P{i}" for i in range(n)]), point_type=kind, xyz=xyz, measure_point=m.pt_idx,
                          measure_image=m.cam_idx, line_sample=m.xy, measure_sigma=np.full(m.pt_idx.size, m.sigma),
-                         image_id=names, xyz_cov=cov)
+                         image_id=np.asarray(names), xyz_cov=cov)
     spec = NavigationSpec(orbit={nm: int(o) for nm, o in zip(names, sb.orbit)},
                           position_sigma=float(sb.nav_sigma[3]), attitude_sigma=float(sb.nav_sigma[0]),
                           offset=offset, drift=drift, offset_sigma=list(sb.offset_sigma), drift_sigma=list(sb.drift_sigma))
@@ -96,6 +96,7 @@ def adjust_multi_orbit(sb: SimulatedBlock, offset: str = "observed",
     e_c = r.cam_params - sb.true_params
     z_c = e_c / np.sqrt(np.diagonal(prec.cam_cov, axis1=1, axis2=2))
     nav = block.navigation
+    assert nav is not None          # the Clementine block has navigation observations
     truth_x = np.concatenate([sb.true_offsets.ravel(), sb.true_drifts.ravel()])
     free = nav.extra_free()
     z_x = (r.extra - truth_x)[free] / np.sqrt(np.diag(prec.extra_cov))[free]

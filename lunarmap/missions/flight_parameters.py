@@ -279,7 +279,7 @@ class FlightParameters:
     # -- files -----------------------------------------------------------------------------------
     def to_dataset(self) -> xr.Dataset:
         """The table as an :class:`xarray.Dataset` (dimension ``photo``; units attributes)."""
-        data = {c: ("photo", getattr(self, c), {"units": UNITS[c]}) for c in COLUMNS}
+        data: dict[str, tuple] = {c: ("photo", getattr(self, c), {"units": UNITS[c]}) for c in COLUMNS}
         if self.et is not None:
             data["et"] = ("photo", self.et, {"units": UNITS["et"], "long_name": "TDB seconds past J2000"})
         if self.utc is not None:

@@ -450,7 +450,7 @@ def _body_frame_name(doc: _Doc, naif: Mapping[str, Any], own: Mapping[str, Any])
     if "body_frame" in own:
         return doc.string(own, "body_frame", "lunarmap.")
     code = naif.get("BODY_FRAME_CODE")
-    if _integral(code):
+    if code is not None and _integral(code):      # _integral(None) is False
         code = int(code)
         named = naif.get(f"FRAME_{code}_NAME")
         if isinstance(named, str):

@@ -53,7 +53,7 @@ def register_kernels(client: Any, kernel_set: KernelSet | str) -> SpiceKernelPlu
     return plugin
 
 
-def dask_logs_to_file(path: str) -> list[tuple[Any, list[Any], int]]:
+def dask_logs_to_file(path: str) -> list[tuple[Any, list[Any], bool]]:
     """Send the ``distributed`` loggers of this process to the file ``path`` instead of the terminal.
 
     Returns what :func:`restore_dask_logs` needs to put the former handlers back.

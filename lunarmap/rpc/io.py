@@ -106,7 +106,7 @@ def write_rpc_txt(model: RationalFunctionModel, path: str | os.PathLike[str]) ->
     lines.append(f"{_SIZE_COMMENT} {model.n_lines} {model.n_samples}")
     text = "\n".join(lines) + "\n"
 
-    def write(tmp: str) -> None:
+    def write(tmp: Path) -> None:
         with open(tmp, "w", encoding="ascii") as fh:
             fh.write(text)
 

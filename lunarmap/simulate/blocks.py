@@ -355,7 +355,7 @@ def linescan_site(rolls: tuple[float, ...] = (-15.0, 0.0, 15.0), degree: int = 1
         for _ in range(3):   # shift the orbit until the centre pixel looks at the site
             g = _nac_camera(lon_o, lat0, roll, altitude, n_lines, n_samples, k1).image_to_ground(
                 n_lines / 2, n_samples / 2, 0.0)
-            lon_o -= xyz_to_lonlat_height(g)[0] - lon0
+            lon_o -= float(xyz_to_lonlat_height(g)[0] - lon0)
         dpos, datt, ddrift = (rng.normal(0, s, 3) for s in (pos_sigma, att_sigma, att_drift_sigma))
         true_cams.append(_nac_camera(lon_o, lat0, roll, altitude, n_lines, n_samples, k1))
         nav_cams.append(_nac_camera(lon_o, lat0, roll, altitude, n_lines, n_samples, k1, (dpos, datt, ddrift)))

@@ -76,15 +76,18 @@ class RenderScene:
     def of(cls, dtm: xr.DataArray | DtmSampler, albedo: xr.DataArray | TiledAlbedo) -> "RenderScene":
         """The scene of a DTM and an albedo (a ``lat`` x ``lon`` raster or a :class:`TiledAlbedo`)."""
         sampler = dtm if isinstance(dtm, DtmSampler) else DtmSampler(dtm)
+        source: DtmSampler | TiledAlbedo
         if isinstance(albedo, xr.DataArray):
             if set(albedo.dims) != {"lat", "lon"}:
                 raise InvalidInputError("the compiled renderer takes a lat/lon albedo raster or a TiledAlbedo; "
                                         f"got dims {albedo.dims} (use render_image for projected rasters)")
-            albedo = DtmSampler(albedo)
-        elif not isinstance(albedo, TiledAlbedo):
+            source = DtmSampler(albedo)
+        elif isinstance(albedo, TiledAlbedo):
+            source = albedo
+        else:
             raise InvalidInputError(f"albedo must be an xarray.DataArray (lat, lon) or a TiledAlbedo, "
                                     f"got {type(albedo).__name__}")
-        return cls(sampler, albedo)
+        return cls(sampler, source)
 
     def _albedo_args(self) -> tuple[Any, ...]:
         empty1 = np.zeros(1)

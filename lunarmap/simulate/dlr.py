@@ -29,6 +29,7 @@ injected blunders, :attr:`DlrSimulation.nav_observed`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,7 +46,7 @@ PX_PER_MM = 43.478
 PAPER_AXES = {"phi": 0, "omega": 1, "kappa": 2, "z0": 3, "x0": 4, "y0": 5}
 
 #: Tables 4-5: true sigmas (image mm per camera, position m and attitude degrees per orbit, control m)
-VARIANCE_EXAMPLES = {
+VARIANCE_EXAMPLES: dict[str, dict[str, Any]] = {
     "I": dict(image_mm=(0.02, 0.005), position_m=(100.0, 500.0), attitude_deg=(0.01, 0.05), control_m=200.0),
     "II": dict(image_mm=(0.1, 0.1), position_m=(2000.0, 2000.0), attitude_deg=(0.2, 0.2), control_m=1000.0),
     # the gross-error experiments (Tables 2-3; the paper does not list their sigmas): example I's
@@ -168,7 +169,7 @@ def dlr_block(seed: int = 0, example: str = "I", offsets: int | None = None, n_p
     ex = VARIANCE_EXAMPLES[example]
     off = np.zeros((2, 6))
     dr = np.zeros((2, 6))
-    for orbit, axis, c, d in OFFSET_EXAMPLES.get(offsets, []):       # type: ignore[call-overload]
+    for orbit, axis, c, d in (OFFSET_EXAMPLES[offsets] if offsets is not None else []):
         k = PAPER_AXES[axis]
         unit = np.radians(1.0) if k < 3 else 1.0
         off[orbit, k] = c * unit

@@ -44,7 +44,7 @@ import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import dask
 import numpy as np
@@ -122,6 +122,11 @@ def block_dtm_file(mission: BlockMission | str | os.PathLike[str], site: int = 1
     bm = _mission(mission)
     site = _site(bm, site)
     return DTM_FILE if bm.model.n_sites == 1 else f"dtm_s{site}.nc"
+
+
+def _netcdf_writer(a: xr.DataArray) -> Callable[[Path], object]:
+    """``write(tmp)`` for :func:`~lunarmap.atomic.atomic_write`: ``a`` as netCDF-4."""
+    return lambda tmp: a.to_netcdf(tmp, engine="netcdf4")
 
 
 def block_scene(mission: BlockMission | str | os.PathLike[str],
@@ -209,10 +214,10 @@ class RenderedBlock:
 
     images: dict[str, xr.DataArray]
     dtm: xr.DataArray
-    albedo: xr.DataArray
+    albedo: xr.DataArray | TiledAlbedo
     paths: dict[str, Path] = field(default_factory=dict)
     seconds: float = 0.0
-    scenes: dict[int, tuple[xr.DataArray, xr.DataArray]] = field(default_factory=dict)
+    scenes: dict[int, tuple[xr.DataArray, xr.DataArray | TiledAlbedo]] = field(default_factory=dict)
 
 
 def _crop_window(cam: Any, crop: int | None) -> tuple[int, int, int, int] | None:
@@ -303,10 +308,10 @@ def render_block(mission: BlockMission | str | os.PathLike[str], output: str | o
     paths: dict[str, Path] = {}
     if write:
         for n, img in images.items():
-            paths[n] = atomic_write(out_dir / f"{n}.nc", lambda tmp, a=img: a.to_netcdf(tmp, engine="netcdf4"))
+            paths[n] = atomic_write(out_dir / f"{n}.nc", _netcdf_writer(img))
         for k, (dtm, _) in scenes.items():
             f = block_dtm_file(bm, k)
-            paths[f[:-3]] = atomic_write(out_dir / f, lambda tmp, d=dtm: d.to_netcdf(tmp, engine="netcdf4"))
+            paths[f[:-3]] = atomic_write(out_dir / f, _netcdf_writer(dtm))
     first = scenes[site_of[sel[0]]]
     return RenderedBlock(images, first[0], first[1], paths, seconds, scenes)
 
@@ -528,14 +533,14 @@ def block_check_points(mission: BlockMission | str | os.PathLike[str], n: int = 
         raise InvalidInputError(f"the common overlap of {sel} holds fewer than {n} visible points "
                                 f"({n_kept} found); use fewer points, fewer images or a smaller margin")
     xyz = np.concatenate(kept)[:n]
-    obs_pt, obs_img, lt, st = [], [], [], []
+    obs_pt, obs_img, lt, smt = [], [], [], []
     for k, name in enumerate(sel):
         ln, sm = cams[name].ground_to_image(xyz)
         obs_pt.append(np.arange(n))
         obs_img.append(np.full(n, k))
         lt.append(ln)
-        st.append(sm)
-    line_true, sample_true = np.concatenate(lt), np.concatenate(st)
+        smt.append(sm)
+    line_true, sample_true = np.concatenate(lt), np.concatenate(smt)
     noise = rng.normal(0.0, 1.0, (2, line_true.size)) * float(sigma_px)
     rr = np.linalg.norm(xyz, axis=-1)
     sig = np.full(line_true.size, float(sigma_px))

@@ -21,7 +21,7 @@ task per block; coordinates are CSM pixel centres (``i + 0.5``).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import dask
 import dask.array as dska
@@ -119,7 +119,7 @@ def _sun_direction(camera: Any, sun: Any) -> Array | None:
     return s / np.linalg.norm(s)
 
 
-def render_image(camera: Any, dtm: xr.DataArray | DtmSampler, ortho: xr.DataArray, *, supersample: int = 3,
+def render_image(camera: Any, dtm: xr.DataArray | DtmSampler, ortho: xr.DataArray | Callable[..., Any], *, supersample: int = 3,
                  sun: str | ArrayLike | None = None, gain: float = 255.0, offset: float = 0.0,
                  noise_sigma: float = 0.0, saturation: float | None = None, seed: int = 0,
                  chunks: int = 256, window: tuple[int, int, int, int] | None = None,

@@ -225,6 +225,7 @@ def lroc_site(images: Sequence[SiteImageSpec] = APOLLO11_LIKE, *, n_tie: int = 1
                              interior=io, line_time=line_time)
         i, a = np.radians(s.incidence_deg), np.radians(s.sun_azimuth_deg)
         to_sun = np.cos(i) * E[2] + np.sin(i) * (np.sin(a) * E[0] + np.cos(a) * E[1])
+        assert isinstance(cam, LineScanCamera)      # kind "linescan"
         cam = _with_sun(cam, centre + 1.496e11 * to_sun)
         dpos, datt, ddrift = (rng.normal(0, sd, 3) for sd in (pos_sigma, att_sigma, att_drift_sigma))
         true_cams[s.name] = cam

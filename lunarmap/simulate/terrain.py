@@ -9,6 +9,8 @@ No external data is needed; every generator is reproducible from its ``seed``.
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 import xarray as xr
 from numpy.typing import NDArray
@@ -44,17 +46,20 @@ def local_grid(lon0: float, lat0: float, extent: float | tuple[float, float], sp
     north, east : ndarray
         The same nodes as local distances from the centre, metres.
     """
-    ew, ns = (extent, extent) if np.isscalar(extent) else extent  # type: ignore[misc]
+    if np.isscalar(extent):         # np.isscalar does not narrow for mypy
+        ew = ns = cast(float, extent)
+    else:
+        ew, ns = cast("tuple[float, float]", extent)
     if not (spacing > 0 and ew > 2 * spacing and ns > 2 * spacing):
         raise InvalidInputError(f"grid extent {extent} m must exceed twice the spacing {spacing} m (> 0)")
     if abs(lat0) > 89.0:
         raise InvalidInputError(f"local lat/lon grids are not supported within 1 degree of a pole (lat0={lat0})")
     n_e = int(np.ceil(ew / spacing)) + 1
     n_n = int(np.ceil(ns / spacing)) + 1
-    east = (np.arange(n_e) - (n_e - 1) / 2.0) * spacing
-    north = (np.arange(n_n) - (n_n - 1) / 2.0) * spacing
-    lat = lat0 + np.degrees(north / radius)
-    lon = lon0 + np.degrees(east / (radius * np.cos(np.radians(lat0))))
+    east = np.asarray((np.arange(n_e) - (n_e - 1) / 2.0) * spacing, dtype=np.float64)
+    north = np.asarray((np.arange(n_n) - (n_n - 1) / 2.0) * spacing, dtype=np.float64)
+    lat = np.asarray(lat0 + np.degrees(north / radius), dtype=np.float64)
+    lon = np.asarray(lon0 + np.degrees(east / (radius * np.cos(np.radians(lat0)))), dtype=np.float64)
     return lat, lon, north, east
 
 
@@ -157,16 +162,17 @@ def synthetic_dtm(lon0: float, lat0: float, extent: float | tuple[float, float],
     rng = np.random.default_rng(seed)
     lat, lon, north, east = local_grid(lon0, lat0, extent, spacing, radius)
     h = rolling_terrain(north, east, relief, wavelength or 20.0 * spacing, rng)
-    d_min = d_min or 8.0 * spacing
-    if np.isscalar(extent):
-        d_max = d_max or extent / 4.0
-        n_craters = int(round(crater_density * (extent / d_min) ** 2))
+    d_lo: float = d_min or 8.0 * spacing
+    if np.isscalar(extent):         # np.isscalar does not narrow for mypy
+        side = cast(float, extent)
+        d_hi: float = d_max or side / 4.0
+        n_craters = int(round(crater_density * (side / d_lo) ** 2))
     else:
-        ew, ns = (float(v) for v in extent)  # type: ignore[union-attr]
-        d_max = d_max or min(ew, ns) / 4.0
-        n_craters = int(round(crater_density * ew * ns / d_min ** 2))
-    if n_craters and d_max > d_min:
-        h = add_craters(h, north, east, n_craters, d_min, d_max, rng)
+        ew, ns = (float(v) for v in cast("tuple[float, float]", extent))
+        d_hi = d_max or min(ew, ns) / 4.0
+        n_craters = int(round(crater_density * ew * ns / d_lo ** 2))
+    if n_craters and d_hi > d_lo:
+        h = add_craters(h, north, east, n_craters, d_lo, d_hi, rng)
     return _as_dataarray(h, lat, lon, "height", "m", spacing_m=spacing, radius_m=radius,
                          description="lunarmap.simulate synthetic DTM (craters over rolling terrain)")
 

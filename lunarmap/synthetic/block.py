@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -86,6 +86,9 @@ __all__ = [
     "TRUTH_SPK_STEP", "TRUTH_CK_STEP", "NAV_SPK_STEP", "NAV_CK_STEP", "SPK_MARGIN", "LAYOUTS",
     "FULL_SIZE_ORBIT_STAGGER", "FULL_SIZE_ORBITS",
 ]
+
+#: roll, pitch, yaw-like triples (angles, wobble amplitudes/periods/phases)
+_Vec3 = tuple[float, float, float]
 
 #: Default site latitude, degrees (planetocentric).
 SITE_LATITUDE_DEG = 57.0
@@ -617,12 +620,12 @@ def build_block_model(seed: int = 0, *, orbits: int = BLOCK_ORBITS, site_latitud
     periapsis = float(rng.uniform(0.0, 2.0 * np.pi))
     periapsis_rate = float(np.radians(rng.uniform(-3.0, 3.0)) / 86400.0)
     node_jitter = float(np.radians(rng.uniform(-2.0, 2.0)))
-    wobble_amp = tuple(float(np.radians(a)) for a in rng.uniform(0.008, 0.012, 3))
-    wobble_period = tuple(float(p) for p in rng.uniform(1500.0, 2400.0, 3))
-    wobble_phase = tuple(float(p) for p in rng.uniform(0.0, 2.0 * np.pi, 3))
+    wobble_amp = cast(_Vec3, tuple(float(np.radians(a)) for a in rng.uniform(0.008, 0.012, 3)))
+    wobble_period = cast(_Vec3, tuple(float(p) for p in rng.uniform(1500.0, 2400.0, 3)))
+    wobble_phase = cast(_Vec3, tuple(float(p) for p in rng.uniform(0.0, 2.0 * np.pi, 3)))
     misalign = rng.choice([-1.0, 1.0], (3, 3)) * rng.uniform(0.01, 0.05, (3, 3))
     cameras = BLOCK_CAMERAS if layout == "block" else FULL_SIZE_CAMERAS
-    mounting = {c.naif_id: tuple(float(round(n + m, 6)) for n, m in zip(c.nominal_angles_deg, misalign[i]))
+    mounting = {c.naif_id: cast(_Vec3, tuple(float(round(n + m, 6)) for n, m in zip(c.nominal_angles_deg, misalign[i])))
                 for i, c in enumerate(cameras)}
 
     start = tdb_to_et(MISSION_START_TDB)

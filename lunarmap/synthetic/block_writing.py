@@ -283,6 +283,7 @@ def _image_records(model: BlockModel, d: Path) -> dict[str, Any]:
                 rec["line_time_ms"], rec["line_time_s"] = line_ms, line_ms / 1000.0
                 text = isis_label(line_time_ms=line_ms, **common)
             else:
+                assert im.exposure is not None      # frame images have an exposure
                 rec["exposure_ms"], rec["exposure_s"] = float(im.exposure) * 1000.0, float(im.exposure)
                 text = isis_label(exposure_ms=float(im.exposure) * 1000.0, **common)
             (d / rec["label"]).write_text(text, encoding="ascii")
@@ -448,7 +449,8 @@ def _spec(navigation: NavigationErrorSpec | Mapping[str, Any] | None, sites: Any
         return navigation
     if isinstance(navigation, Mapping):
         try:
-            return NavigationErrorSpec(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in navigation.items()})
+            kw: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) else v) for k, v in navigation.items()}
+            return NavigationErrorSpec(**kw)
         except TypeError as exc:
             raise InvalidInputError(f"navigation error parameters: {exc}") from None
     raise InvalidInputError(f"navigation must be a NavigationErrorSpec or a mapping, got {type(navigation).__name__}")

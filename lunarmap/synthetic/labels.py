@@ -89,5 +89,7 @@ def isis_label_groups(*, spacecraft_name: str, instrument_id: str, start_time: s
     if line_time_ms is not None:
         inst.append(("LineExposureDuration", Unit(float(line_time_ms), "ms")))
     else:
+        if exposure_ms is None:
+            raise TypeError("isis_label needs line_time_ms or exposure_ms")
         inst.append(("ExposureDuration", Unit(float(exposure_ms), "ms")))
     return [("Group", "Instrument", inst), ("Group", "Kernels", [("NaifFrameCode", int(naif_frame_code))])]

@@ -24,7 +24,7 @@ from __future__ import annotations
 import dataclasses
 import datetime as _dt
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -42,6 +42,9 @@ __all__ = [
     "PLANET_STEP", "PLANET_MARGIN", "NAC_IMAGE_LINES", "FRAME_EXPOSURE_MS", "ImageTiming", "ImagePlan", "SimMission",
     "build_mission", "tdb_to_et",
 ]
+
+#: roll, pitch, yaw-like triples (angles, wobble amplitudes/periods/phases)
+_Vec3 = tuple[float, float, float]
 
 #: Start of the kernel coverage, calendar TDB.
 MISSION_START_TDB = "2026-03-21T00:00:00"
@@ -101,7 +104,10 @@ class ImageTiming:
     @property
     def duration(self) -> float:
         """Acquisition time, s."""
-        return self.lines * self.line_time if self.line_time is not None else float(self.exposure)
+        if self.line_time is not None:
+            return self.lines * self.line_time
+        assert self.exposure is not None        # frame images have an exposure
+        return float(self.exposure)
 
     @property
     def planned_start_et(self) -> float:
@@ -234,7 +240,7 @@ class SimMission:
     def ck_grid(self) -> NDArray[np.float64]:
         """The CK record epochs, ET."""
         n = int(round((self.end_et - self.start_et) / CK_STEP))
-        return self.start_et + CK_STEP * np.arange(n + 1)
+        return np.asarray(self.start_et + CK_STEP * np.arange(n + 1), dtype=np.float64)
 
 
 def _latitude_time(orbit: KeplerOrbit, target_deg: float, revolution: int) -> float:
@@ -270,13 +276,13 @@ def build_mission(seed: int = 0) -> SimMission:
     periapsis = float(rng.uniform(0.0, 2.0 * np.pi))
     periapsis_rate = float(np.deg2rad(rng.uniform(-3.0, 3.0)) / 86400.0)
     node_jitter = float(np.deg2rad(rng.uniform(-2.0, 2.0)))
-    wobble_amp = tuple(float(np.deg2rad(a)) for a in rng.uniform(0.008, 0.012, 3))
-    wobble_period = tuple(float(p) for p in rng.uniform(1500.0, 2400.0, 3))
-    wobble_phase = tuple(float(p) for p in rng.uniform(0.0, 2.0 * np.pi, 3))
+    wobble_amp = cast(_Vec3, tuple(float(np.deg2rad(a)) for a in rng.uniform(0.008, 0.012, 3)))
+    wobble_period = cast(_Vec3, tuple(float(p) for p in rng.uniform(1500.0, 2400.0, 3)))
+    wobble_phase = cast(_Vec3, tuple(float(p) for p in rng.uniform(0.0, 2.0 * np.pi, 3)))
     signs = rng.choice([-1.0, 1.0], 6)
     mags = rng.uniform(0.01, 0.05, 6)
-    nac_angles = tuple(float(round(s * m, 6)) for s, m in zip(signs[:3], mags[:3]))
-    frame_angles = tuple(float(round(s * m, 6)) for s, m in zip(signs[3:], mags[3:]))
+    nac_angles = cast(_Vec3, tuple(float(round(s * m, 6)) for s, m in zip(signs[:3], mags[:3])))
+    frame_angles = cast(_Vec3, tuple(float(round(s * m, 6)) for s, m in zip(signs[3:], mags[3:])))
 
     start = tdb_to_et(MISSION_START_TDB)
     end = start + MISSION_DURATION

@@ -177,6 +177,7 @@ def _image_records(mission: SimMission, d: Path) -> tuple[dict[str, Any], dict[s
                                    sclk_start=sclk_start, naif_frame_code=im.camera.naif_id,
                                    line_time_ms=line_ms)
             else:
+                assert im.exposure is not None      # frame images have an exposure
                 rec["exposure_ms"] = float(im.exposure) * 1000.0
                 rec["exposure_s"] = float(im.exposure)
                 label = isis_label(samples=im.samples, lines=im.lines, spacecraft_name=ids.SPACECRAFT_NAME,

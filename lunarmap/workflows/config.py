@@ -336,8 +336,9 @@ def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",
     other_images = d.get("points", {}).get("other_images", "error")
     if other_images not in ("error", "ignore"):
         raise ConfigError(f"{src}: points.other_images must be 'error' or 'ignore', got {other_images!r}")
-    height_range = _numbers(rpc["height_range"], 2, "rpc.height_range", src) if "height_range" in rpc \
+    lo, hi = _numbers(rpc["height_range"], 2, "rpc.height_range", src) if "height_range" in rpc \
         else (-300.0, 300.0)
+    height_range = (lo, hi)
     if not height_range[1] > height_range[0]:
         raise ConfigError(f"{src}: rpc.height_range must increase, got {list(height_range)}")
     degree = int(adj.get("degree", 1))

@@ -32,7 +32,7 @@ import shutil
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import dask
 
@@ -200,7 +200,7 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
     stage_of: dict[str, str] = {}
     outputs: dict[str, list[Path]] = {}
 
-    def node(stage: str, key: str, fn: Callable[..., Any], *args: Any, out: list[Path] = ()) -> Any:
+    def node(stage: str, key: str, fn: Callable[..., Any], *args: Any, out: Sequence[Path] = ()) -> Any:
         name = f"{stage}-{key}"
         if done is not None and name in done:
             return done[name]
@@ -292,7 +292,7 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
     k_adj = step_key("adjust", [cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, groups, names]
                      + ([qc] if qc is not None else [])
                      + ([cfg.points_other_images] if points and cfg.points_other_images != "error" else []),
-                     [isd_key[n] for n in names] + [k_tie, file_digest(cfg.points) if points else ""])
+                     [isd_key[n] for n in names] + [k_tie, file_digest(cfg.points) if cfg.points is not None else ""])
     adj = node("adjust", k_adj, adjust_step, store, k_adj, names, groups, [rec[n]["isd"] for n in names], ties,
                points, cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, attrs, qc, cfg.points_other_images,
                out=[store.path("adjust", k_adj)])

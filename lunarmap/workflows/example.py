@@ -113,7 +113,7 @@ def _points_network(points, kind: str, prefix: str, sigma_m: float = 0.0, rng=No
     if kind == "control":
         xyz = xyz + rng.normal(0.0, sigma_m, xyz.shape)       # a reference DTM / altimetry with sigma_m
         cov = np.repeat((sigma_m ** 2 * np.eye(3))[None], ids.size, axis=0)
-    return ControlNetwork([f"{prefix}{i}" for i in ids], [kind] * ids.size, xyz, inverse,
+    return ControlNetwork(np.array([f"{prefix}{i}" for i in ids]), np.array([kind] * ids.size), xyz, inverse,
                           points["image_id"].values, np.column_stack([points["line"].values, points["sample"].values]),
                           np.column_stack([points["sigma_line"].values, points["sigma_sample"].values]),
                           np.asarray(points["image"].values).astype(str), xyz_cov=cov)
@@ -234,7 +234,7 @@ def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = F
 
         raise InvalidInputError(f"the full-size example has one site, got sites={sites!r}")
     layout = "full_size" if full_size else "block"
-    extra = {} if site_spacing_deg is None else {"site_spacing_deg": float(site_spacing_deg)}
+    extra: dict[str, Any] = {} if site_spacing_deg is None else {"site_spacing_deg": float(site_spacing_deg)}
     # the digest holds only the parameters given, so that the examples written before stay fresh
     mission_doc = {"seed": int(seed), "sites": int(sites), "layout": layout, **extra,
                    **({} if site_half_width_s is None else {"site_half_width_s": float(site_half_width_s)})}
@@ -405,7 +405,8 @@ def _full_size_points(bm: Any, use: list[str], n_control: int, n_check: int, con
     def share(total):  # untyped as the lambda it replaces (typed, mypy misreads the loop below)
         return [total // len(groups) + (1 if i < total % len(groups) else 0) for i in range(len(groups))]
 
-    nets_c, nets_k = [], []
+    nets_c: list[Any] = []          # ControlNetwork
+    nets_k: list[Any] = []
     for i, ((kind, here), nc, nk) in enumerate(zip(groups.items(), share(n_control), share(n_check))):
         for n, what, out, s in ((nc, "control", nets_c, 11), (nk, "check", nets_k, 12)):
             if n:

@@ -284,11 +284,11 @@ def write_report(result: Any, qc_truth: dict[str, Any] | None = None) -> Path:
             ax.plot(poly[ok, 0], poly[ok, 1], lw=1.2, color=colours(k % 20), label=f"{k + 1}: {name}")
             outlines.append(poly)
         kind = pts["point_type"].values.astype(str)
-        for k, c, m, sz in (("tie", "0.55", ".", 3), ("control", "tab:red", "^", 30), ("check", "tab:blue", "o", 22)):
-            sel = kind == k
+        for ptype, c, m, sz in (("tie", "0.55", ".", 3), ("control", "tab:red", "^", 30), ("check", "tab:blue", "o", 22)):
+            sel = kind == ptype
             if sel.any():
                 ax.scatter(pts["lon"].values[sel], pts["lat"].values[sel], s=sz, c=c, marker=m, zorder=3,
-                           label=f"{k} points ({int(sel.sum())})", edgecolors="white" if k != "tie" else "none",
+                           label=f"{ptype} points ({int(sel.sum())})", edgecolors="white" if ptype != "tie" else "none",
                            linewidths=0.5)
         if outlines:
             allp = np.concatenate(outlines)
@@ -455,17 +455,17 @@ def write_report(result: Any, qc_truth: dict[str, Any] | None = None) -> Path:
         qrows = []
         step("QC decisions table")
         if dec is not None:
-            for k in range(dec.sizes["decision"]):
-                image = int(dec["image"].values[k])
-                point = int(dec["point"].values[k])
-                comp = int(dec["component"].values[k])
-                val, red = float(dec["value"].values[k]), float(dec["redundancy"].values[k])
-                qrows.append([str(dec["step"].values[k]), int(dec["round"].values[k]), str(dec["kind"].values[k]),
+            for kd in range(dec.sizes["decision"]):
+                image = int(dec["image"].values[kd])
+                point = int(dec["point"].values[kd])
+                component = int(dec["component"].values[kd])
+                val, red = float(dec["value"].values[kd]), float(dec["redundancy"].values[kd])
+                qrows.append([str(dec["step"].values[kd]), int(dec["round"].values[kd]), str(dec["kind"].values[kd]),
                               names[image] if 0 <= image < len(names) else "",
                               pid.get(point, str(point)) if point >= 0 else "",
-                              {0: "line", 1: "sample"}.get(comp, ""), f"{val:.2f}" if np.isfinite(val) else "",
-                              f"{red:.3f}" if np.isfinite(red) else "", str(dec["action"].values[k]),
-                              str(dec["group"].values[k])])
+                              {0: "line", 1: "sample"}.get(component, ""), f"{val:.2f}" if np.isfinite(val) else "",
+                              f"{red:.3f}" if np.isfinite(red) else "", str(dec["action"].values[kd]),
+                              str(dec["group"].values[kd])])
         cols = [("step", QC_COLUMNS["step"]), ("round", QC_COLUMNS["round"]), ("kind", QC_COLUMNS["kind"]),
                 ("image", QC_COLUMNS["image"]), ("point", QC_COLUMNS["point"]), ("coord", QC_COLUMNS["coord"]),
                 ("w", QC_COLUMNS["w"]), ("r", QC_COLUMNS["r"]), ("action", QC_COLUMNS["action"]),

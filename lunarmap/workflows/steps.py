@@ -206,10 +206,12 @@ def rpc_step(store: Store, key: str, isd: Done, height_range: tuple[float, float
     from ..rpc import fit_rpc, write_netcdf
 
     try:
-        fit = fit_rpc(_camera(isd), tuple(height_range))
+        lo, hi = height_range
+        fit = fit_rpc(_camera(isd), (lo, hi))
     except LunarmapError as err:
         raise _fail("rpc", isd.item, err) from None
     path = store.write("rpc", key, "nc", lambda tmp: write_netcdf(fit.model, tmp))
+    assert fit.check is not None        # fit_rpc checks by default
     return Done("rpc", key, isd.item, str(path), True, time.perf_counter() - t,
                 note=f"check RMS {fit.check.rms:.2e} px")
 
@@ -227,10 +229,12 @@ def adjusted_rpc_step(store: Store, key: str, name: str, adjusted: Done, height_
     from ..rpc import fit_rpc, write_netcdf
 
     try:
-        fit = fit_rpc(camera_from_isd_file(Path(adjusted.path) / f"{name}.adjusted.json"), tuple(height_range))
+        lo, hi = height_range
+        fit = fit_rpc(camera_from_isd_file(Path(adjusted.path) / f"{name}.adjusted.json"), (lo, hi))
     except LunarmapError as err:
         raise _fail("rpc_adjusted", name, err) from None
     path = store.write("rpc_adjusted", key, "nc", lambda tmp: write_netcdf(fit.model, tmp))
+    assert fit.check is not None        # fit_rpc checks by default
     return Done("rpc_adjusted", key, name, str(path), True, time.perf_counter() - t,
                 note=f"check RMS {fit.check.rms:.2e} px")
 
@@ -622,7 +626,8 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
                 qc_out = _quality_control(block, names, groups, qc, opts)
                 problem = qc_out.problem
             groups_obs = np.where(block.network.point_type[problem.obs.pt_idx] == "tie", 0, 1)
-            tie_variance = estimate_tie_variance and not (qc_out is not None and "variance" in qc["steps"])
+            tie_variance = estimate_tie_variance and not (qc_out is not None and qc is not None
+                                                          and "variance" in qc["steps"])
             if qc_out is not None and not tie_variance:
                 est = None
                 result = qc_out.result
@@ -640,12 +645,12 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
         except LunarmapError as err:
             raise _fail("adjust", "", err) from None
 
-        summary = {"sigma0": res.sigma0, "iterations": int(res.result.iterations), "converged": bool(res.converged),
-                   "message": res.result.message, "tie_sigma_scale": float(est.scale[0]) if est is not None else 1.0,
-                   "variance_factors": [h.tolist() for h in est.history] if est is not None else [], "images": list(names),
-                   "n_points": int(block.problem.n_points), "n_observations": int(block.problem.obs.n),
-                   "groups": {k: list(v) for k, v in res.result.group_quadratic_forms().items()},
-                   "rms_px": res.result.rms_px(), "solve_seconds": float(res.result.solve_seconds)}
+        summary: dict[str, Any] = {"sigma0": res.sigma0, "iterations": int(res.result.iterations), "converged": bool(res.converged),
+                                   "message": res.result.message, "tie_sigma_scale": float(est.scale[0]) if est is not None else 1.0,
+                                   "variance_factors": [h.tolist() for h in est.history] if est is not None else [], "images": list(names),
+                                   "n_points": int(block.problem.n_points), "n_observations": int(block.problem.obs.n),
+                                   "groups": {k: list(v) for k, v in res.result.group_quadratic_forms().items()},
+                                   "rms_px": res.result.rms_px(), "solve_seconds": float(res.result.solve_seconds)}
         check_res = res
         if qc_out is not None:
             summary["qc"] = _qc_summary(qc_out, block, names)

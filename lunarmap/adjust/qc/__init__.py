@@ -35,7 +35,7 @@ from ..problem import BundleProblem
 from ..result import AdjustmentResult
 from ..solver import SolverOptions
 from ..variance import ObservationGroups, VarianceComponents, estimate_variance_components, observation_groups
-from .ledger import Decision, Ledger
+from .ledger import Decision, Ledger, _last_result
 from .offsets import offset_drift_step
 from .report import QCReport
 from .robust import WEIGHT_FUNCTIONS, robust_step, weight_function
@@ -261,7 +261,7 @@ def quality_control(problem: BundleProblem, steps: Sequence[str] = ("sequent", "
                   int(ledger.active.sum()))
     if ledger.result is None:
         ledger.adjust(opt.solver)
-    res = ledger.result
+    res = _last_result(ledger)
     summary["sigma0_first"] = float(sigma0_first)
     summary["sigma0_last"] = float(res.sigma0)
     groups_ds = None

@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import asdict, dataclass
 from types import SimpleNamespace
+from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -84,6 +85,13 @@ class Decision:
 RUNAWAY = 10.0
 
 
+def _last_result(ledger: Ledger) -> AdjustmentResult:
+    """The ledger's last adjustment (the quality-control steps run after one)."""
+    res = ledger.result
+    assert res is not None, "quality control step before the ledger's first adjustment"
+    return res
+
+
 class Ledger:
     """Weights and decisions of a quality-controlled adjustment of ``problem`` (module docstring).
 
@@ -131,7 +139,7 @@ class Ledger:
         """
         start = start if start is not None else self.result
         cam, pts = (None, None) if start is None else (start.cam_params, start.points.copy())
-        if pts is not None and self._touched:
+        if pts is not None and cam is not None and self._touched:
             pts = self._reintersect(cam, pts)
         return reweighted_problem(self.base, self.weights, cam, pts, self.terms)
 
@@ -226,7 +234,8 @@ class Ledger:
         res = None
         for pts in starts:
             self._touched = set(lost)
-            start = SimpleNamespace(cam_params=self.base.cam_params, points=pts)
+            # problem() reads only the start's cam_params and points
+            start = cast(AdjustmentResult, SimpleNamespace(cam_params=self.base.cam_params, points=pts))
             res = solve(self._finite(self.problem(start)), opts)
             self._adjusted = True
             if res.accepted > 0 and not self._degenerate(res).size:
@@ -300,9 +309,9 @@ class Ledger:
                                            "(its intersection, its start, the median point)")
             if not self.weights.dropped_points[j] and not self._control_pts[j]:
                 drop.append(int(j))
-        for j in drop:
-            self.weights.dropped_points[j] = True
-            self.decisions.append(Decision(self.step, 0, "point", j, -1, j, -1, np.nan, np.nan, "dropped",
+        for jd in drop:
+            self.weights.dropped_points[jd] = True
+            self.decisions.append(Decision(self.step, 0, "point", jd, -1, jd, -1, np.nan, np.nan, "dropped",
                                            ASIDE_BEHIND))
         return reweighted_problem(self.base, self.weights, pb.cam_params, pts, self.terms)
 
@@ -445,6 +454,7 @@ class Ledger:
                            component=-1) -> None:
         """``P_new = P_old / factor`` for control point ``k`` (``priors`` order)."""
         self.weights.control_sigma[k] *= np.sqrt(factor)
+        assert self.base.priors is not None, "control points down-weighted in a problem without priors"
         self.decisions.append(Decision(step, rnd, "control", int(k), -1, int(self.base.priors.idx[k]), int(component),
                                        float(value), float(redundancy), "downweighted", "control"))
 

@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from ...errors import QualityControlInputError
 from ..navigation import NavigationObservations
 from ..solver import SolverOptions
-from .ledger import Decision, Ledger
+from .ledger import Decision, Ledger, _last_result
 
 __all__ = ["offset_drift_step"]
 
@@ -61,7 +61,7 @@ def _extra_slice(ledger: Ledger, t: int) -> slice:
 
 def _posterior(ledger: Ledger, t: int) -> tuple[NDArray, NDArray, NDArray, NDArray]:
     """Offsets, drifts (n_orb, p) and their posterior sigmas from the last adjustment."""
-    res = ledger.result
+    res = _last_result(ledger)
     nav = ledger.terms[t]
     sl = _extra_slice(ledger, t)
     e = res.extra[sl]
@@ -78,7 +78,7 @@ def _regress(ledger: Ledger, t: int, drifts: bool, k1: float, apriori: bool = Fa
     free. ``apriori``: standard deviations from the navigation sigmas (else from the fit's scatter);
     ``skip (2, n_orb, p)``: offsets / drifts already free (not regressed; the other one of the pair is).
     """
-    res = ledger.result
+    res = _last_result(ledger)
     nav = ledger.terms[t]
     n_orb, p = nav.n_orbits, nav.p
     # a-priori sigmas with the current factors of the image rows (rows are the used entries, row-major)

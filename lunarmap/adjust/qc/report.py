@@ -133,10 +133,10 @@ class QCReport:
             for i, name in enumerate(g["group"].values):
                 tail = "" if bool(g["estimated"].values[i]) else "  (not estimated)"
                 if joint:
-                    c = np.array(g["correlation"].values[i], float)
-                    c[i] = 0.0
-                    j = int(np.nanargmin(c)) if np.isfinite(c).any() else -1
-                    trade = (f" {g['group'].values[j]} ({c[j]:+.2f})" if j >= 0 and c[j] < -SEPARABLE_CORRELATION
+                    corr = np.array(g["correlation"].values[i], float)
+                    corr[i] = 0.0
+                    j = int(np.nanargmin(corr)) if np.isfinite(corr).any() else -1
+                    trade = (f" {g['group'].values[j]} ({corr[j]:+.2f})" if j >= 0 and corr[j] < -SEPARABLE_CORRELATION
                              else "")
                     tail = f" {float(g['sigma_factor_sigma_joint'].values[i]):>8.4f} {trade}" + tail
                 lines.append(f"{str(name):<36} {float(g['sigma_factor'].values[i]):>18.4f} "

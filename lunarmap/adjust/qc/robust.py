@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from ...errors import QualityControlInputError
 from ..normal import AdjustmentState
 from ..solver import SolverOptions
-from .ledger import Ledger
+from .ledger import Ledger, _last_result
 
 __all__ = ["WEIGHT_FUNCTIONS", "weight_function", "robust_step"]
 
@@ -183,7 +183,7 @@ def robust_step(ledger: Ledger, function: str = "danish", c: float | None = None
             if change < 1e-3:
                 break
             result = ledger.adjust(options)
-    u = _normalised(ledger, ledger.result.state, scale, red, active)
+    u = _normalised(ledger, _last_result(ledger).state, scale, red, active)
     reject = np.flatnonzero(active & (robust < min_weight))
     ledger.weights.image_weight = base_w.copy()
     ledger.remove_image(reject, "robust", rounds, value=robust[reject])

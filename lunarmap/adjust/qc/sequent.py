@@ -104,7 +104,7 @@ def sequent_screening(problem: BundleProblem, limit_km: float = 10.0, units_per_
     o = problem.obs
     model = problem.model
     cp = problem.cam_params if cam_params is None else cam_params
-    act = np.asarray(problem.obs_weight > 0 if active is None else active, bool)
+    act = np.asarray(np.asarray(problem.obs_weight) > 0 if active is None else active, bool)  # set by __post_init__
     n_pt = problem.n_points
     keep = act.copy()
     order = np.argsort(o.pt_idx, kind="stable")

@@ -53,6 +53,7 @@ per adjustment would take too many rounds; the paper's way is ``"one"``.
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -61,6 +62,7 @@ from ...errors import AdjustmentDivergedError, DatumDefectError, QualityControlE
 from ..normal import image_residuals, prior_terms
 from ..solver import SolverOptions
 from .ledger import Decision, Ledger
+from .ledger import _last_result as _result
 
 __all__ = ["w_tests", "snooping_step"]
 
@@ -109,7 +111,7 @@ def w_tests(ledger: Ledger, sigma0: str = "apriori", min_redundancy: float = 0.0
         where not tested (removed, fixed, redundancy below ``min_redundancy``, pseudo-observations);
         ``untestable`` the number of observations below ``min_redundancy``; ``sigma0``.
     """
-    res = ledger.result
+    res = _result(ledger)
     pb = res.problem
     pr = _precision(res)
     s0 = res.sigma0 if sigma0 == "aposteriori" else 1.0
@@ -125,13 +127,13 @@ def w_tests(ledger: Ledger, sigma0: str = "apriori", min_redundancy: float = 0.0
         # errors is theirs, and no test would fail against it
         s0 = max(1.4826 * float(np.median(np.abs(w_img[ok]))), 1e-12)
         w_img = w_img / s0
-    out = {"image": w_img, "image_r": np.where(act, r, np.nan)}
+    out: dict[str, Any] = {"image": w_img, "image_r": np.where(act, r, np.nan)}
     base = ledger.base.priors
     k = 0 if base is None else base.idx.size
     w_c = np.full((k, 3), np.nan)
     r_c = np.full((k, 3), np.nan)
     pt = prior_terms(pb, res.points)
-    if pt is not None and k:
+    if pt is not None and base is not None and k:
         rows = np.flatnonzero(~base.fixed)            # weighted base priors come first in pb.priors
         zc, rc = pt[1][:rows.size], pr.control_redundancy[:rows.size]
         okc = rc >= min_redundancy
@@ -198,7 +200,7 @@ def _reinstatable(ledger: Ledger, limit: float, done: set) -> NDArray[np.int64]:
     the limit (its w-test could only be smaller: the prediction's variance adds to ``sigma^2``) is
     given back, once; the testing then goes on.
     """
-    res = ledger.result
+    res = _result(ledger)
     o = ledger.base.obs
     removed = np.setdiff1d(_removed_images(ledger, REINSTATABLE_STEPS), np.fromiter(done, np.int64, len(done)))
     if removed.size == 0:
@@ -212,8 +214,8 @@ def _restorable(ledger: Ledger, limit: float, done: set, every: bool = False) ->
     """Down-weighted navigation rows and control points whose whitened residual at their a-priori weight is
     within the limit (see :func:`_reinstatable`); keys ``("term", t, row)`` / ``("control", k)``. ``every``:
     all of them, whatever their residual (each once)."""
-    res = ledger.result
-    out = []
+    res = _result(ledger)
+    out: list[tuple] = []
     for t, f in enumerate(ledger.weights.term_sigma):
         rows = np.flatnonzero(f > 1.0)
         if rows.size == 0:
@@ -226,6 +228,7 @@ def _restorable(ledger: Ledger, limit: float, done: set, every: bool = False) ->
     if k.size:
         pt = prior_terms(res.problem, res.points)
         base = ledger.base.priors
+        assert pt is not None and base is not None, "down-weighted control points without priors"
         rows = np.cumsum(~base.fixed) - 1
         for kk in k:
             if base.fixed[kk]:
@@ -275,7 +278,7 @@ def _trial_costs(ledger: Ledger, cand: NDArray[np.int64], cam: int, options: Sol
     from ..solver import solve
     from ..weights import reweighted_problem
 
-    res = ledger.result
+    res = _result(ledger)
     opts = dataclasses.replace(options or SolverOptions(), check_datum=False)
     rows = _nav_rows(ledger, cam) if cam >= 0 else []
     cost = np.full(cand.size, np.inf)
@@ -307,7 +310,7 @@ def _fit_stats(zs: list) -> tuple[NDArray, NDArray, NDArray]:
 def _image_fits(ledger: Ledger, unit: int, cand: NDArray[np.int64]) -> tuple[NDArray, NDArray, NDArray]:
     """RMS, largest whitened residual and chi-square of the other candidates with each candidate left out in
     turn, image ``unit`` resected on the adjusted points."""
-    res = ledger.result
+    res = _result(ledger)
     model = ledger.base.model
     o = ledger.base.obs
     n = cand.size
@@ -333,23 +336,26 @@ def _point_fits(ledger: Ledger, units: list[int], cands: list[NDArray[np.int64]]
     one ray as for thousands; per point it was most of the run's snooping time)."""
     from ..intersection import intersect_points
 
-    res = ledger.result
+    res = _result(ledger)
     model = ledger.base.model
     o = ledger.base.obs
     # one pseudo-point per (point, left-out ray), from every other candidate ray of its point
-    obs, pk, first, x0 = [], [], [0], []
+    obs_l: list[NDArray] = []
+    pk_l: list[NDArray] = []
+    x0_l: list[NDArray] = []
+    first = [0]
     for unit, cand in zip(units, cands):
         n = cand.size
         rk, ri = np.nonzero(~np.eye(n, dtype=bool))
-        obs.append(cand[ri])
-        pk.append(first[-1] + rk)
+        obs_l.append(cand[ri])
+        pk_l.append(first[-1] + rk)
         first.append(first[-1] + n)
         # a point set aside has stale coordinates: start from the model's own guess (NaN marks it)
         ok = not ledger.weights.dropped_points[unit] and np.all(np.isfinite(res.points[unit]))
-        x0.append(np.repeat((res.points[unit] if ok else np.full(3, np.nan))[None, :], n, axis=0))
+        x0_l.append(np.repeat((res.points[unit] if ok else np.full(3, np.nan))[None, :], n, axis=0))
     if not units:
         return []
-    obs, pk, x0 = np.concatenate(obs), np.concatenate(pk), np.concatenate(x0)
+    obs, pk, x0 = np.concatenate(obs_l), np.concatenate(pk_l), np.concatenate(x0_l)
     sig = o.sigma[obs] * ledger.weights.image_sigma[obs][:, None]
     n_pt = first[-1]
     prior_xyz = prior_W = None
@@ -385,7 +391,7 @@ def _point_fits(ledger: Ledger, units: list[int], cands: list[NDArray[np.int64]]
     order = np.argsort(pk, kind="stable")
     bounds = np.searchsorted(pk[order], np.arange(n_pt + 1))
     zs = [z[order[bounds[i]:bounds[i + 1]]].ravel() for i in range(n_pt)]
-    if zp is not None:
+    if zp is not None and prior_W is not None:
         zs = [np.concatenate([zi, zp[i]]) if np.any(prior_W[i]) else zi for i, zi in enumerate(zs)]
     return [_fit_stats(zs[first[j]:first[j + 1]]) for j in range(len(units))]
 
@@ -455,7 +461,7 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
             cand = np.union1d(mine[live], rem)
             if kind == "image":     # a resection needs the adjusted points: none of points set aside
                 cand = cand[~ledger.weights.dropped_points[o.pt_idx[cand]]
-                            & np.all(np.isfinite(ledger.result.points[o.pt_idx[cand]]), axis=1)]
+                            & np.all(np.isfinite(_result(ledger).points[o.pt_idx[cand]]), axis=1)]
             if rem.size < max(2, cand.size // 3) or not (min_rays <= cand.size <= max_rays):
                 continue
             done.add((kind, unit))
@@ -484,7 +490,7 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
                 # that one back (each given-back coordinate allowed limit**2, the w-test's own bound)
                 n_back = 2 * (rem.size - 1) + sum(int(np.sum(ledger.weights.term_sigma[t][r] > 1.0))
                                                   for t, r in enumerate(_nav_rows(ledger, unit)))
-                if 2.0 * (cost[best] - ledger.result.cost) > limit ** 2 * max(n_back, 1):
+                if 2.0 * (cost[best] - _result(ledger).cost) > limit ** 2 * max(n_back, 1):
                     continue
             if not _swap(ledger, int(cand[best]), rem, rnd, np.nan, f"left out of its stripped {kind}"):
                 continue                        # nothing would change
@@ -615,7 +621,7 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
                 continue
             # no precision at this state (gross errors distort it beyond repair): remove the image
             # observation with the largest normalised residual, without a w-test, and go on
-            res = ledger.result
+            res = _result(ledger)
             z = np.max(np.abs(res.image_residuals()) / res.problem.obs.sigma, axis=1)
             z[~ledger.active] = -1.0
             i = int(np.argmax(z))
@@ -635,14 +641,14 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
                 cands.append((wi_obs[i], "image", i, -1))
             else:
                 fail = np.flatnonzero(wi_obs > limit)
-                top = {}
+                top: dict[int, int] = {}
                 for i in fail[np.argsort(-wi_obs[fail])]:
                     top.setdefault(int(o.pt_idx[i]), int(i))
                 cands += [(wi_obs[i], "image", i, -1) for i in top.values()]
         wc = np.abs(tests["control"])
         if wc.size and np.nanmax(np.where(np.isnan(wc), -1, wc)) > limit:
-            k, a = np.unravel_index(np.nanargmax(np.where(np.isnan(wc), -1, wc)), wc.shape)
-            cands.append((wc[k, a], "control", int(k), int(a)))
+            kc, ac = np.unravel_index(np.nanargmax(np.where(np.isnan(wc), -1, wc)), wc.shape)
+            cands.append((wc[kc, ac], "control", int(kc), int(ac)))
         for t, wt in enumerate(tests["terms"]):
             aw = np.abs(wt)
             if aw.size and np.nanmax(np.where(np.isnan(aw), -1, aw)) > limit:

@@ -285,8 +285,8 @@ class Driver:
             **io, **self.sensor_keys(),
         )
 
-    @staticmethod
-    def _rotation_table(frame: int, times: np.ndarray, rates: bool = True) -> RotationTable:
+    def _rotation_table(self, frame: int, times: np.ndarray, rates: bool = True) -> RotationTable:
+        # an instance method (it was static) so that drivers can override it with their own pointing
         constant, dependent = q.frame_trace(frame, float(times[0]))
         source = dependent[0]
         m = q.rotations("J2000", source, times)
