@@ -12,7 +12,7 @@ import threading
 from dataclasses import dataclass
 from typing import Iterator
 
-__all__ = ["rss_mb", "peak_rss_mb", "PeakRss", "peak_rss_during"]
+__all__ = ["rss_mb", "peak_rss_mb", "PeakRss", "peak_rss_during", "release_free_memory"]
 
 
 def _status(key: str) -> float | None:
@@ -73,3 +73,21 @@ def peak_rss_during(interval: float = 0.05) -> Iterator[PeakRss]:
         stop.set()
         th.join()
         out.peak_mb = max(out.peak_mb, rss_mb())
+
+
+def release_free_memory() -> None:
+    """Give the C heap's free pages back to the system (glibc ``malloc_trim``; nothing elsewhere).
+
+    numpy's temporaries of a few MB come from the heap once glibc has raised its mmap threshold, and freed
+    ones stay resident: a worker matching full-size pairs one after another held ~250 MB more after each
+    batch (measured: 862 MB resident before a trim, 618 MB after).
+    """
+    import ctypes
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):      # not glibc (musl): nothing to do
+        pass

@@ -305,3 +305,27 @@ def test_reading_a_chunked_netcdf_image_by_window_keeps_no_chunk_cache(tmp_path)
     gc.collect()
     assert rss_mb() - before < 8.0, f"{rss_mb() - before:.1f} MB kept after reading a 64 MB image by window"
     src.close()
+
+
+def test_release_free_memory_gives_freed_heap_pages_back():
+    """glibc keeps freed mid-size numpy temporaries resident once its mmap threshold has risen (a full-size
+    match worker grew ~250 MB per batch); after ``release_free_memory`` the process's RSS is back down."""
+    import sys
+
+    import numpy as np
+
+    from lunarmap.procmem import release_free_memory, rss_mb
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("glibc's malloc_trim: Linux only")
+    big = np.ones(2 << 20)            # 16 MB from mmap, freed: glibc raises its mmap threshold to its size
+    del big
+    keep = []
+    arrays = [np.ones(1 << 17) for _ in range(300)]     # 300 x 1 MB, now from the heap
+    keep = arrays[::50]                                  # a few survivors pin the heap's top
+    del arrays
+    before = rss_mb()
+    release_free_memory()
+    after = rss_mb()
+    assert before - after > 100, (before, after)
+    assert len(keep) == 6

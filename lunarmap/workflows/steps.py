@@ -68,7 +68,7 @@ class Done:
 def _one_blas_thread(fn: Callable[..., Done]) -> Callable[..., Done]:
     """Run a step with one BLAS thread, as on dask workers (results do not depend on where a step ran),
     and record the process's peak resident memory while it computed (the run's per-step memory figures)."""
-    from ..procmem import peak_rss_during
+    from ..procmem import peak_rss_during, release_free_memory
 
     @functools.wraps(fn)
     def wrapped(*args: Any, **kwargs: Any) -> Done:
@@ -76,6 +76,7 @@ def _one_blas_thread(fn: Callable[..., Done]) -> Callable[..., Done]:
             out = fn(*args, **kwargs)
         if isinstance(out, Done) and out.computed:
             out = replace(out, peak_mb=round(memory.peak_mb, 1))
+            release_free_memory()      # what the step freed leaves the worker, not only its Python heap
         return out
     return wrapped
 
@@ -190,7 +191,9 @@ def _camera(isd: Done) -> Any:
     return _camera_of(*_stamp(isd.path))
 
 
-@functools.lru_cache(maxsize=256)
+# a few cameras per process: a batch's pairs share their images, and a full-size line scanner's lookup table is
+# ~29 MB (256 cached cameras of a long run would be 7 GB)
+@functools.lru_cache(maxsize=8)
 def _camera_of(path: str, size: int, mtime: int) -> Any:
     from ..camera.factory import camera_from_isd_file
 
