@@ -179,6 +179,7 @@ def write_wac_block(folder: str | os.PathLike[str], seed: int = 0, framelets: in
     from ..spice.writer import CkSegment, SpkSegment, loaded_temporarily, write_ck, write_spk, write_text_kernel
     from ..synthetic import ids, textkernels
     from ..synthetic.bodies import moon_state_ssb, sun_state_ssb
+    from ..synthetic.mission import tdb_to_et
     from .orbits import orbit_state, nadir_rotation
     from .render import render_image
     from .terrain import synthetic_scene
@@ -189,8 +190,7 @@ def write_wac_block(folder: str | os.PathLike[str], seed: int = 0, framelets: in
     rng = np.random.default_rng(seed)
     lsk, sclk, pck, fk, ik, planets = (d / f for f in _KERNELS)
     write_text_kernel(lsk, "LSK", *reversed(textkernels.lsk()))
-    with loaded_temporarily([lsk]):
-        zero_et = float(spiceypy.str2et(f"{textkernels.SCLK_ZERO_TDB} TDB"))
+    zero_et = tdb_to_et(textkernels.SCLK_ZERO_TDB)
     write_text_kernel(sclk, "SCLK", *reversed(textkernels.sclk(zero_et)))
     write_text_kernel(pck, "PCK", *reversed(textkernels.pck()))
     write_text_kernel(fk, "FK", *reversed(_frames_kernel()))
