@@ -100,8 +100,8 @@ def _label(name: str, lines: int, start_utc: str, sclk: str, exposure_ms: float,
 
 
 def _frames_kernel() -> tuple[str, Any]:
-    from ..synthetic import ids
     from ..spice.writer import Append
+    from ..synthetic import ids
 
     b = WAC_ID
     names = {"NAIF_BODY_NAME": Append([ids.SPACECRAFT_NAME, WAC_NAME]),
@@ -114,8 +114,8 @@ def _frames_kernel() -> tuple[str, Any]:
 
 
 def _instrument_kernel() -> tuple[str, Any]:
-    from .orbits import wac_like_interior
     from ..synthetic import ids
+    from .orbits import wac_like_interior
 
     io = wac_like_interior()
     p = f"INS{WAC_ID}_"
@@ -180,7 +180,7 @@ def write_wac_block(folder: str | os.PathLike[str], seed: int = 0, framelets: in
     from ..synthetic import ids, textkernels
     from ..synthetic.bodies import moon_state_ssb, sun_state_ssb
     from ..synthetic.mission import tdb_to_et
-    from .orbits import orbit_state, nadir_rotation
+    from .orbits import nadir_rotation, orbit_state
     from .render import render_image
     from .terrain import synthetic_scene
 
@@ -189,12 +189,17 @@ def write_wac_block(folder: str | os.PathLike[str], seed: int = 0, framelets: in
     d.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     lsk, sclk, pck, fk, ik, planets = (d / f for f in _KERNELS)
-    write_text_kernel(lsk, "LSK", *reversed(textkernels.lsk()))
+    c, sec = textkernels.lsk()
+    write_text_kernel(lsk, "LSK", sec, c)
     zero_et = tdb_to_et(textkernels.SCLK_ZERO_TDB)
-    write_text_kernel(sclk, "SCLK", *reversed(textkernels.sclk(zero_et)))
-    write_text_kernel(pck, "PCK", *reversed(textkernels.pck()))
-    write_text_kernel(fk, "FK", *reversed(_frames_kernel()))
-    write_text_kernel(ik, "IK", *reversed(_instrument_kernel()))
+    c, sec = textkernels.sclk(zero_et)
+    write_text_kernel(sclk, "SCLK", sec, c)
+    c, sec = textkernels.pck()
+    write_text_kernel(pck, "PCK", sec, c)
+    c, sec = _frames_kernel()
+    write_text_kernel(fk, "FK", sec, c)
+    c, sec = _instrument_kernel()
+    write_text_kernel(ik, "IK", sec, c)
     epoch0 = zero_et + 80 * 86400.0 + 0.25      # tick-aligned (1/65536 s)
     epochs = [epoch0 + o * _ORBIT_PERIOD for o in (0, 1)]
     tp = epoch0 - 86400.0 + 3600.0 * np.arange(51)
@@ -210,7 +215,10 @@ def write_wac_block(folder: str | os.PathLike[str], seed: int = 0, framelets: in
     half_image = 0.5 * (framelets - 1) * delay
     span = 0.95 * framelets * delay + framelets * delay
     t = np.arange(-span, span + 1e-9, _STEP)
-    truth_spk, nav_spk, truth_ck, nav_ck = [], [], [], []
+    truth_spk: list[Any] = []
+    nav_spk: list[Any] = []
+    truth_ck: list[Any] = []
+    nav_ck: list[Any] = []
     for o, e in enumerate(epochs):
         lon = lon0 + _ORBIT_SPACING_DEG * o
         pos, vel = orbit_state(t, _LAT0, lon)
@@ -284,10 +292,10 @@ def write_wac_block(folder: str | os.PathLike[str], seed: int = 0, framelets: in
         if kind == "control":
             xyz = xyz + rng.normal(0, 0.5, xyz.shape)
             cov = np.tile(np.eye(3) * 0.5 ** 2, (keep.size, 1, 1))
-        return ControlNetwork(point_id=[f"{kind[:2]}{i}" for i in keep], point_type=[kind] * keep.size, xyz=xyz,
+        return ControlNetwork(point_id=np.array([f"{kind[:2]}{i}" for i in keep]), point_type=np.array([kind] * keep.size), xyz=xyz,
                               measure_point=np.searchsorted(keep, pid), measure_image=np.array(img),
                               line_sample=np.array(ls), measure_sigma=np.full((len(pid), 2), sigma),
-                              image_id=names, xyz_cov=cov)
+                              image_id=np.array(names), xyz_cov=cov)
 
     net = merge_networks(measured(g[:n_control], "control", 0.2),
                          measured(g[n_control:n_control + n_check], "check", 0.2))
