@@ -34,7 +34,8 @@ __all__ = ["main", "plain_text"]
 
 
 def plain_text(text: str) -> str:
-    """``text`` without its reStructuredText markup (for ``--help``): ````x```` -> x, :func:`~a.b` -> b."""
+    """``text`` without its reStructuredText markup (for ``--help``): literals lose their double backticks,
+    cross-reference roles (``:func:``, ``:class:``, ...) keep their target's last name."""
     import re
 
     text = re.sub(r":[a-z]+:`~?([^`<]*?)(?:\s*<[^>]*>)?`", lambda m: m.group(1).split(".")[-1]

@@ -782,7 +782,10 @@ def _run_locked(cfg: RunConfig, scheduler: Any, workers: int, report: bool | Non
 
             restore_dask_logs(dask_logs)
         root.removeHandler(handler)
-        handler.close()
+        try:
+            handler.close()
+        except OSError:     # run.log on a full disk cannot take its last lines: the run's own error says why
+            pass
 
 
 def check_run(config: RunConfig | str | os.PathLike[str]) -> tuple[int, list[str]]:
