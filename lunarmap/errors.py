@@ -70,6 +70,9 @@ __all__ = [
     "IsisNetworkFormatError",
     "UnknownImageError",
     "QualityControlError",
+    "TerrainInputError",
+    "DtmCrsError",
+    "DtmCoverageError",
     "QualityControlInputError",
     "VarianceComponentError",
 ]
@@ -224,6 +227,20 @@ class AdjustmentDivergedError(AdjustmentError, ConvergenceError):
 
 class NetworkFormatError(AdjustmentInputError):
     """A control-network file or dataset is malformed: missing variable, bad point type, index out of range."""
+
+
+class TerrainInputError(AdjustmentInputError):
+    """A reference DTM cannot serve as terrain observations (bad sigma, unreadable file, rotated grid);
+    the message names the file and the cause."""
+
+
+class DtmCrsError(TerrainInputError):
+    """A reference DTM has no coordinate reference system, or one that is not a Moon sphere (the heights
+    would be measured from an unknown datum)."""
+
+
+class DtmCoverageError(TerrainInputError):
+    """A reference DTM covers none of the block's tie points (outside its grid or on NaN nodes)."""
 
 
 # --- ISD JSON files (lunarmap.orientation.isd_reader, feature isd-json) -----

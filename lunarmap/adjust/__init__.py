@@ -12,7 +12,9 @@ control points and full posterior precision.
   against other solvers;
 * :func:`quality_control` (:mod:`.qc`) -- Sequent pre-screening, robust reweighting, Baarda data
   snooping of every observation group, variance components per group, per-orbit offset/drift
-  detection, with a report of every decision (issue 11).
+  detection, with a report of every decision (issue 11);
+* :class:`ReferenceDtm` (:mod:`.terrain`) -- reference DTM heights as observations of the tie points
+  (issue 30), one variance-component group per DTM, snooped like the others.
 """
 
 from ..errors import (
@@ -38,6 +40,7 @@ from .qc import QCOptions, QCReport, QCResult, quality_control
 from .result import AdjustmentResult
 from .sensors import SensorImageModel
 from .solver import AdjustmentState, SolverOptions, solve
+from .terrain import DtmGrid, DtmHeights, ReferenceDtm, dtm_heights
 from .variance import (
     ObservationGroups,
     VarianceComponents,
@@ -59,7 +62,7 @@ __all__ = [
     "AdjustmentResult", "AdjustmentState", "SolverOptions", "solve",
     "lonlat_priors", "lonlat_covariance_to_xyz",
     "ControlNetwork", "read_network", "write_network", "network_from_tiepoints", "merge_networks",
-    "NavigationObservations",
+    "NavigationObservations", "ReferenceDtm", "DtmGrid", "DtmHeights", "dtm_heights",
     "ObservationGroups", "VarianceComponents", "estimate_variance_components", "observation_groups",
     "variance_component_covariance",
     "ScaledTerm", "Weights", "reweighted_problem", "QCOptions", "QCReport", "QCResult", "quality_control",

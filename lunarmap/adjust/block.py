@@ -10,6 +10,8 @@
 * optionally navigation observations (:class:`NavigationSpec`): the sensors' own orientation is the
   navigation, observed with sigmas, with per-orbit offsets and drifts (DLR paper, ``seeds/004``,
   Eqs. 2-3);
+* optionally reference DTMs (:class:`~lunarmap.adjust.terrain.ReferenceDtm`): the heights of the tie
+  points inside each DTM are observed (:mod:`lunarmap.adjust.terrain`), one observation group per DTM;
 
 into a :class:`~lunarmap.adjust.problem.BundleProblem` over a
 :class:`~lunarmap.adjust.sensors.SensorImageModel`, with start values of the points from forward
@@ -20,7 +22,7 @@ points against their reference coordinates next to the sigma the adjustment pred
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -38,6 +40,7 @@ from .problem import BundleProblem
 from .result import AdjustmentResult
 from .sensors import SensorImageModel
 from .solver import SolverOptions, solve
+from .terrain import DtmHeights, ReferenceDtm, dtm_heights
 
 __all__ = ["NavigationSpec", "Block", "BlockResult", "build_block", "solve_block", "navigation_observations"]
 
@@ -159,6 +162,8 @@ class Block:
         The measurements (its images reordered to ``names``).
     problem : BundleProblem
     navigation : NavigationObservations or None
+    terrain : list of DtmHeights
+        The reference-DTM terms (one per DTM), in the order given.
     """
 
     names: list[str]
@@ -166,6 +171,7 @@ class Block:
     network: ControlNetwork
     problem: BundleProblem
     navigation: NavigationObservations | None
+    terrain: list[DtmHeights] = field(default_factory=list)
 
     @property
     def sensors(self) -> dict[str, SensorModel]:
@@ -174,7 +180,7 @@ class Block:
 
 def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr.Dataset, *, degree: int = 1,
                 navigation: NavigationSpec | None = None, times: Mapping[str, float] | None = None,
-                representation: str = "covariance") -> Block:
+                representation: str = "covariance", terrain: Sequence[ReferenceDtm] = ()) -> Block:
     """Build an adjustment block (see the module docstring).
 
     Parameters
@@ -192,6 +198,9 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
         Image times for navigation drifts (default: the cameras' ``center_time``).
     representation : str
         Control-point weighting, see :meth:`ControlNetwork.priors`.
+    terrain : sequence of ReferenceDtm
+        Reference DTMs whose heights observe the tie points inside them (:mod:`lunarmap.adjust.terrain`);
+        points outside a DTM or on its NaN nodes are skipped (``block.terrain[k].skipped``).
 
     Returns
     -------
@@ -208,6 +217,8 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
         An image without measurements (named), a free point with fewer than two rays.
     DistortionPartialsError
         A camera whose distortion has no partial derivatives.
+    DtmCrsError, DtmCoverageError, TerrainInputError
+        A reference DTM without a Moon CRS, covering no tie point, or unreadable.
     """
     net = network_from_tiepoints(network) if isinstance(network, xr.Dataset) else network
     if not isinstance(net, ControlNetwork):
@@ -253,8 +264,15 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
     if navigation is not None:
         nav = navigation_observations(model, navigation, names, times)
         terms.append(nav)
+    dtms = []
+    for ref in terrain:
+        if not isinstance(ref, ReferenceDtm):
+            raise AdjustmentInputError(f"terrain must be ReferenceDtm objects, got {type(ref).__name__}")
+        cand = np.isin(net.point_type, list(ref.point_types))
+        dtms.append(dtm_heights(ref, X0, model.n_images * model.n_params, model.n_images, cand, net.point_id))
+    terms += dtms
     problem = net.to_problem(model, params0, points=X0, terms=terms, representation=representation)
-    return Block(names, model, net, problem, nav)
+    return Block(names, model, net, problem, nav, dtms)
 
 
 @dataclass

@@ -16,7 +16,7 @@ from .problem import BundleProblem
 from .schur import SchurStructure, inv_sym3, normal_blocks, whiten
 
 __all__ = ["AdjustmentState", "Linearization", "Terms", "linearize", "reduced_system", "back_substitute",
-           "evaluate_cost", "image_residuals", "prior_terms", "split_extra"]
+           "evaluate_cost", "image_residuals", "prior_terms", "split_extra", "term_linearize", "term_residuals"]
 
 
 @dataclass
@@ -49,6 +49,10 @@ class Linearization:
     gx: NDArray           # (n_red,)
     cost: float
     prior_r: NDArray | None = None
+    #: rows of the point-observing terms (reference DTMs): their rows in ``rx``, points and whitened partials (m, 3)
+    xp_rows: NDArray | None = None
+    xp_idx: NDArray | None = None
+    xp_J: NDArray | None = None
 
 
 def prior_terms(problem: BundleProblem, points: NDArray):
@@ -64,6 +68,21 @@ def prior_terms(problem: BundleProblem, points: NDArray):
     idx = pr.idx[m]
     W = pr.sqrt_weight()[m]
     return idx, np.einsum("kij,kj->ki", W, points[idx] - pr.xyz[m]), W
+
+
+def term_linearize(t, cam_params: NDArray, extra: NDArray, points: NDArray):
+    """``(r, J, Jp)`` of a term: whitened residuals, Jacobian on the reduced unknowns, and for terms that
+    observe points (``uses_points``, e.g. :class:`~lunarmap.adjust.terrain.DtmHeights`) the whitened partials
+    ``(m, 3)`` w.r.t. the point of every row (``t.point_index``); ``Jp`` is None for camera-level terms."""
+    if getattr(t, "uses_points", False):
+        return t.linearize(cam_params, extra, points)
+    r, J = t.linearize(cam_params, extra)
+    return r, J, None
+
+
+def term_residuals(t, cam_params: NDArray, extra: NDArray, points: NDArray) -> NDArray:
+    """Whitened residuals of a term (see :func:`term_linearize`)."""
+    return term_linearize(t, cam_params, extra, points)[0]
 
 
 def image_residuals(problem: BundleProblem, state: AdjustmentState) -> NDArray:
@@ -84,7 +103,7 @@ def evaluate_cost(problem: BundleProblem, state: AdjustmentState) -> float:
     if pt is not None:
         c += float(np.sum(pt[1] ** 2))
     for t, e in zip(problem.terms, split_extra(problem, state.extra)):
-        rx, _ = t.linearize(state.cam_params, e)
+        rx = term_residuals(t, state.cam_params, e, state.points)
         c += float(rx @ rx)
     return 0.5 * c
 
@@ -105,12 +124,19 @@ class Terms:
         self.n_cam_red = problem.n_images * problem.model.n_params
         self.n_extra = sum(t.n_extra for t in problem.terms)
 
-    def linearize(self, cam_params, extra):
+    def linearize(self, cam_params, extra, points=None):
+        """Whitened residuals, Jacobian on the reduced unknowns, and the point partials of point-observing
+        terms as ``(rows, point index, (m, 3))`` (None if there are none)."""
         if not self.problem.terms:
-            return np.zeros(0), None
+            return np.zeros(0), None, None
         rs, Js, s = [], [], 0
+        xp: list[tuple[NDArray, NDArray, NDArray]] = []
+        row0 = 0
         for t in self.problem.terms:
-            r, J = t.linearize(cam_params, extra[s:s + t.n_extra])
+            r, J, Jp = term_linearize(t, cam_params, extra[s:s + t.n_extra], points)
+            if Jp is not None:
+                xp.append((row0 + np.arange(r.size), np.asarray(t.point_index, np.int64), np.asarray(Jp, float)))
+            row0 += r.size
             # each term's Jacobian uses [cams | its own extras]; map its extras to the global slot
             J = sp.csr_matrix(J)
             Jc = J[:, :self.n_cam_red]
@@ -120,7 +146,8 @@ class Terms:
             Js.append(sp.hstack([Jc, pad_l, Je, pad_r], format="csr"))
             rs.append(r)
             s += t.n_extra
-        return np.concatenate(rs), sp.vstack(Js, format="csr")
+        pts = None if not xp else tuple(np.concatenate(a) for a in zip(*xp))
+        return np.concatenate(rs), sp.vstack(Js, format="csr"), pts
 
 
 def _model_linearize(problem: BundleProblem, state: AdjustmentState):
@@ -152,10 +179,15 @@ def linearize(problem: BundleProblem, state: AdjustmentState, structure: SchurSt
         np.add.at(V, idx, np.einsum("kji,kjl->kil", Wp, Wp))
         np.add.at(gp, idx, np.einsum("kji,kj->ki", Wp, rr))
         cost += float(np.sum(rr * rr))
+    rx, Jx, xp = terms.linearize(state.cam_params, state.extra, state.points)
+    if xp is not None:
+        # point-only rows (reference DTM heights): rank-1 additions to the point blocks, like control points
+        rows, idx, Jp = xp
+        np.add.at(V, idx, Jp[:, :, None] * Jp[:, None, :])
+        np.add.at(gp, idx, Jp * rx[rows][:, None])
     # fixed points: identity placeholder keeps V invertible; they do not move
     V[fixed_pt] = np.eye(3)
     gp[fixed_pt] = 0.0
-    rx, Jx = terms.linearize(state.cam_params, state.extra)
     n_red = terms.n_cam_red + terms.n_extra
     if Jx is not None:
         Nx = (Jx.T @ Jx).tocsr()
@@ -164,7 +196,7 @@ def linearize(problem: BundleProblem, state: AdjustmentState, structure: SchurSt
     else:
         Nx, gx = None, np.zeros(n_red)
     return Linearization(r, Ac, Ap, U, V, W, gc, gp, rx, Jx, Nx, gx, 0.5 * cost,
-                         pt[1] if pt is not None else None)
+                         pt[1] if pt is not None else None, *(xp if xp is not None else (None, None, None)))
 
 
 def reduced_system(lin: Linearization, structure: SchurStructure, terms: Terms, mu: float, free_red: NDArray):

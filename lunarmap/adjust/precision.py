@@ -563,7 +563,7 @@ def posterior_precision(result, method: str = "auto", redundancy: bool = False,
     if redundancy:
         ctl_red = _control_redundancy(pb, result.state.points, Cpp)
         lookup = _SparseCofactors(Qblk, st, Qextra, inv.Qce, p, terms.n_cam_red)
-        term_red = _term_redundancy(pb, lin, terms, lookup)
+        term_red = _term_redundancy(pb, lin, terms, lookup, Cpp)
     return Precision(Qblk[st.diag_block] * s2, Cpp * s2, Qextra * s2, Q, red if redundancy else None,
                      result.sigma0, f"sparse-{inv.method}", undetermined, ctl_red, term_red, inv.Qce * s2)
 
@@ -616,8 +616,10 @@ class _SparseCofactors:
         return out
 
 
-def _term_redundancy(pb, lin, terms, lookup) -> list | None:
-    """``1 - a_i^T Q a_i`` of every whitened row ``a_i`` of the camera-level terms (each row sees few unknowns)."""
+def _term_redundancy(pb, lin, terms, lookup, Qpp: NDArray | None = None) -> list | None:
+    """``1 - a_i^T Q a_i`` of every whitened row ``a_i`` of the terms (each row sees few unknowns); rows of
+    point-observing terms (reference DTM heights) see one point only: ``a_i^T Q_pp a_i`` with ``Q_pp`` its
+    cofactors."""
     if lin.Jx is None:
         return None
     J = sp.csr_matrix(lin.Jx)
@@ -631,6 +633,12 @@ def _term_redundancy(pb, lin, terms, lookup) -> list | None:
             iu, iv = J.indptr[rows] + u, J.indptr[rows] + v
             q = lookup(J.indices[iu].astype(np.int64), J.indices[iv].astype(np.int64))
             quad[rows] += J.data[iu] * J.data[iv] * q
+    if lin.xp_rows is not None and lin.xp_idx is not None and lin.xp_J is not None and Qpp is not None:
+        # the rows observe only their point: no cross cofactors with the images are needed
+        assert not np.any(cnt[lin.xp_rows]), "a point-observing term row with image-parameter partials"
+        a = lin.xp_J
+        with np.errstate(invalid="ignore"):
+            quad[lin.xp_rows] += np.einsum("ki,kij,kj->k", a, Qpp[lin.xp_idx], a)
     red = 1.0 - quad
     out, s0 = [], 0
     for t in pb.terms:
@@ -729,6 +737,6 @@ def _dense_precision(result, redundancy: bool, scale_by_sigma0: bool) -> Precisi
     ctl_red = term_red = None
     if redundancy:
         ctl_red = _control_redundancy(pb, result.state.points, pt_q)
-        term_red = _term_redundancy(pb, lin, terms, lambda a, b: Q[a, b])
+        term_red = _term_redundancy(pb, lin, terms, lambda a, b: Q[a, b], pt_q)
     return Precision(cam_cov, pt_cov, extra_cov, Q, red, result.sigma0, "dense-lapack", np.zeros(0, np.int64),
                      ctl_red, term_red, Q[:n_cam_red, n_cam_red:] * s2)

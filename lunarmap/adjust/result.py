@@ -93,7 +93,7 @@ class AdjustmentResult:
         Divide by the group's summed redundancy numbers for a group variance factor
         (variance-component estimation).
         """
-        from .normal import image_residuals, prior_terms
+        from .normal import image_residuals, prior_terms, term_residuals
 
         out = {}
         r = image_residuals(self.problem, self.state)
@@ -102,7 +102,7 @@ class AdjustmentResult:
         if pt is not None:
             out["control"] = (float(np.sum(pt[1] ** 2)), int(pt[1].size))
         for i, t in enumerate(self.problem.terms):
-            rx, _ = t.linearize(self.cam_params, self._term_extra(i))
+            rx = term_residuals(t, self.cam_params, self._term_extra(i), self.points)
             out[getattr(t, "name", f"term{i}")] = (float(rx @ rx), int(rx.size))
         return out
 

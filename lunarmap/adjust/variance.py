@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import AdjustmentInputError, VarianceComponentError
-from .normal import prior_terms
+from .normal import prior_terms, term_residuals
 from .problem import BundleProblem, ImageObservations
 from .result import AdjustmentResult
 from .solver import SolverOptions, solve
@@ -226,7 +226,11 @@ def observation_groups(problem: BundleProblem, image_group: NDArray | None = Non
     for t in problem.terms:
         g = -np.ones(t.n_obs_scalar, np.int64)
         table = getattr(t, "row_table", None)
-        if navigation and table is not None:
+        if getattr(t, "variance_group", False):
+            # a reference DTM: all its rows one group (its own variance component)
+            g[:] = len(names)
+            names.append(str(getattr(t, "name", f"term {len(terms)}")))
+        elif navigation and table is not None:
             rt = table()
             obs_rows = rt["kind"] == 0
             kinds = np.array([_kind_of(param_names[j]) if j < len(param_names) else f"p{j}" for j in rt["param"]])
@@ -274,7 +278,7 @@ def group_variance_factors(result: AdjustmentResult, groups: ObservationGroups
         np.add.at(red, gc[use], np.sum(pr.control_redundancy[rows[use]], axis=1))
         np.add.at(cnt, gc[use], 3)
     for i, (t, gt) in enumerate(zip(pb.terms, groups.terms)):
-        rx, _ = t.linearize(result.cam_params, result._term_extra(i))
+        rx = term_residuals(t, result.cam_params, result._term_extra(i), result.points)
         use = gt >= 0
         np.add.at(vpv, gt[use], rx[use] ** 2)
         np.add.at(red, gt[use], pr.term_redundancy[i][use])
@@ -554,6 +558,10 @@ def _dense_design(result: AdjustmentResult, groups: ObservationGroups) -> tuple[
     g = [np.repeat(groups.image[img], 2)]
     if m_t and lin.Jx is not None:
         J[m_img:m_img + m_t, :n_red] = lin.Jx.toarray()
+        if lin.xp_rows is not None and lin.xp_idx is not None and lin.xp_J is not None:
+            # point-observing term rows (reference DTM heights)
+            cols = n_red + lin.xp_idx[:, None] * 3 + np.arange(3)
+            J[m_img + lin.xp_rows[:, None], cols] = lin.xp_J
         g += list(groups.terms)
     if m_p:
         idx, _, W = pt

@@ -65,7 +65,10 @@ class ScaledTerm:
     def observed_images(self) -> NDArray[np.bool_]:
         return self.term.observed_images()
 
-    def linearize(self, cam_params: NDArray, extra: NDArray):
+    def linearize(self, cam_params: NDArray, extra: NDArray, points: NDArray | None = None):
+        if getattr(self.term, "uses_points", False):     # a point-observing term (reference DTM heights)
+            r, J, Jp = self.term.linearize(cam_params, extra, points)
+            return r / self.factor, (self._scale @ sp.csr_matrix(J)).tocsr(), Jp / self.factor[:, None]
         r, J = self.term.linearize(cam_params, extra)
         return r / self.factor, (self._scale @ sp.csr_matrix(J)).tocsr()
 

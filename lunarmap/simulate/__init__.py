@@ -3,10 +3,11 @@ full-size images written into ISIS cubes stripe by stripe), stereo geometry, adj
 
 from ..errors import SimulationWarning
 from .albedo import TiledAlbedo, tiled_albedo
-from .blocks import Measurements, SimulatedBlock, frame_block, linescan_site, local_enu, observe
+from .blocks import Measurements, SimulatedBlock, frame_block, frame_block_height, linescan_site, local_enu, observe
 from .compiled_render import RenderedCube, RenderScene, render_cube, render_window
 from .dlr import Blunders, DlrSimulation, dlr_block, inject_blunders
 from .mission import RenderedBlock, block_cameras, block_check_points, block_scene, render_block, render_block_cubes
+from .reference_dtm import SimulatedDtm, reference_dtm
 from .render import RenderSpec, render_image, surface_normals
 from .sampling import RasterSampler
 from .site import APOLLO11_LIKE, SimulatedSite, SiteImageSpec, lroc_site
@@ -30,4 +31,5 @@ __all__ = [
     "render_cube", "render_window", "RenderScene", "RenderedCube", "TiledAlbedo", "tiled_albedo",
     "lroc_site", "SimulatedSite", "SiteImageSpec", "APOLLO11_LIKE",
     "dlr_block", "inject_blunders", "DlrSimulation", "Blunders",
+    "frame_block_height", "reference_dtm", "SimulatedDtm",
 ]

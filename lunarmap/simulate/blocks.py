@@ -34,7 +34,7 @@ from ..orientation.exterior import ExteriorOrientation
 from ..orientation.rotation import matrix_to_quat, quat_to_matrix, rotvec_to_matrix
 from .orbits import NAC_LINE_TIME, nac_like_interior, polar_orbit_eo
 
-__all__ = ["Measurements", "SimulatedBlock", "frame_block", "linescan_site", "local_enu", "observe"]
+__all__ = ["Measurements", "SimulatedBlock", "frame_block", "frame_block_height", "linescan_site", "local_enu", "observe"]
 
 Array = NDArray[np.float64]
 
@@ -276,7 +276,7 @@ def frame_block(orbits: int = 4, per_orbit: int = 12, points: int = 1500, n_cont
     m = 6 * points
     plat = rng.uniform(lats.min() - margin, lats.max() + margin, m)
     plon = rng.uniform(lons.min() - margin, lons.max() + margin, m)
-    h = relief * (0.5 * np.sin(plat * R / 37e3 + 1.0) * np.cos(plon * R / 53e3) + 0.2 * np.sin(plon * R / 11e3))
+    h = _frame_height(plon, plat, relief)
     X = lonlat_height_to_xyz(np.degrees(plon), np.degrees(plat), h)
     sig_cam = np.asarray(sigma_px, float)
     if sig_cam.ndim == 0:
@@ -293,6 +293,18 @@ def frame_block(orbits: int = 4, per_orbit: int = 12, points: int = 1500, n_cont
     return SimulatedBlock(true_cams, nav_cams, err.copy(), X, meas, orbit, t, control, check, ctl_xyz,
                           float(control_sigma), off, dr, nav_sig, np.array([offset_att] * 3 + [offset_pos] * 3),
                           np.array([drift_att] * 3 + [drift_pos] * 3), 0, camera)
+
+
+def _frame_height(lon_rad: Array, lat_rad: Array, relief: float) -> Array:
+    R = MOON_RADIUS
+    return relief * (0.5 * np.sin(lat_rad * R / 37e3 + 1.0) * np.cos(lon_rad * R / 53e3)
+                     + 0.2 * np.sin(lon_rad * R / 11e3))
+
+
+def frame_block_height(lon: ArrayLike, lat: ArrayLike, relief: float = 2000.0) -> Array:
+    """The true terrain of :func:`frame_block` (its ``relief``): heights above the Moon sphere, metres, at
+    ``lon, lat`` degrees (planetocentric, east)."""
+    return _frame_height(np.radians(np.asarray(lon, float)), np.radians(np.asarray(lat, float)), relief)
 
 
 def _per_orbit(name: str, values: ArrayLike, orbits: int) -> Array:

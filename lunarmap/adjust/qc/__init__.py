@@ -283,4 +283,5 @@ def block_result(qc: QCResult, block):
     (adjusted sensors, points, check points), the block's problem replaced by the final one."""
     from ..block import Block, BlockResult
 
-    return BlockResult(Block(block.names, block.model, block.network, qc.problem, block.navigation), qc.result)
+    return BlockResult(Block(block.names, block.model, block.network, qc.problem, block.navigation, block.terrain),
+                       qc.result)

@@ -45,7 +45,8 @@ class Decision:
     round : int
         Adjustment round within the step (0 for pre-screening).
     kind : str
-        ``"image"``, ``"control"``, ``"navigation"``, ``"point"``, ``"camera"``.
+        ``"image"``, ``"control"``, ``"navigation"``, ``"terrain"`` (a reference DTM height), ``"point"``,
+        ``"camera"``.
     index : int
         Image observation index, control point index (``priors`` order), term row, point or image.
     image, point : int
@@ -445,9 +446,12 @@ class Ledger:
 
     def downweight_term(self, term: int, row: int, factor: float, step: str, rnd: int, value=np.nan,
                         redundancy=np.nan, image=-1, component=-1, group="navigation") -> None:
-        """``P_new = P_old / factor`` for one row of a camera-level term (navigation observation)."""
+        """``P_new = P_old / factor`` for one row of a term (navigation observation; a reference DTM height,
+        recorded as kind ``"terrain"`` with its point)."""
         self.weights.term_sigma[term][row] *= np.sqrt(factor)
-        self.decisions.append(Decision(step, rnd, "navigation", int(row), int(image), -1, int(component), float(value),
+        t = self.terms[term]
+        kind, point = ("terrain", int(t.point_index[row])) if getattr(t, "uses_points", False) else ("navigation", -1)
+        self.decisions.append(Decision(step, rnd, kind, int(row), int(image), point, int(component), float(value),
                                        float(redundancy), "downweighted", group))
 
     def downweight_control(self, k: int, factor: float, step: str, rnd: int, value=np.nan, redundancy=np.nan,

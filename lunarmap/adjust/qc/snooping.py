@@ -59,7 +59,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ...errors import AdjustmentDivergedError, DatumDefectError, QualityControlError, QualityControlInputError
-from ..normal import image_residuals, prior_terms
+from ..normal import image_residuals, prior_terms, term_residuals
 from ..solver import SolverOptions
 from .ledger import Decision, Ledger
 from .ledger import _last_result as _result
@@ -144,7 +144,7 @@ def w_tests(ledger: Ledger, sigma0: str = "apriori", min_redundancy: float = 0.0
     out["control"], out["control_r"] = w_c, r_c
     wt, rt = [], []
     for i, t in enumerate(pb.terms):
-        rx, _ = t.linearize(res.cam_params, res._term_extra(i))
+        rx = term_residuals(t, res.cam_params, res._term_extra(i), res.points)
         rr = pr.term_redundancy[i]
         table = getattr(t, "row_table", None)
         obs_rows = np.ones(rx.size, bool) if table is None else table()["kind"] == 0
@@ -163,6 +163,11 @@ def w_tests(ledger: Ledger, sigma0: str = "apriori", min_redundancy: float = 0.0
 def _term_info(ledger: Ledger, t: int, row: int) -> tuple[int, int, str]:
     term = ledger.terms[t]
     table = getattr(term, "row_table", None)
+    if getattr(term, "uses_points", False):
+        # a reference DTM row: the point it observes (steep or changed terrain) is named
+        j = int(term.point_index[row])
+        ids = getattr(term, "point_ids", None)
+        return -1, -1, f"{getattr(term, 'name', f'term {t}')} point {ids[row] if ids is not None else j}"
     if table is None:
         return -1, -1, getattr(term, "name", f"term {t}")
     rt = table()
@@ -220,7 +225,7 @@ def _restorable(ledger: Ledger, limit: float, done: set, every: bool = False) ->
         rows = np.flatnonzero(f > 1.0)
         if rows.size == 0:
             continue
-        rx, _ = res.problem.terms[t].linearize(res.cam_params, res._term_extra(t))
+        rx = term_residuals(res.problem.terms[t], res.cam_params, res._term_extra(t), res.points)
         z = np.abs(rx[rows]) * f[rows]          # back to the a-priori sigma
         out += [("term", t, int(r)) for r, zz in zip(rows, z)
                 if (every or zz <= limit) and ("term", t, int(r)) not in done]
