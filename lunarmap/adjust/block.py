@@ -259,7 +259,7 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
         first = net.point_id[np.argmax(bad)]
         raise AdjustmentInputError(f"{int(bad.sum())} point(s) could not be intersected from their rays "
                                    f"(first: {first}); check their measurements")
-    terms = []
+    terms: list = []
     nav = None
     if navigation is not None:
         nav = navigation_observations(model, navigation, names, times)

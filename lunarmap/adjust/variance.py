@@ -221,7 +221,7 @@ def observation_groups(problem: BundleProblem, image_group: NDArray | None = Non
         if weighted.any():
             ctl[weighted] = len(names)
             names.append("control")
-    terms = []
+    terms: list[NDArray[np.int64]] = []
     param_names = list(getattr(problem.model, "param_names", []))
     for t in problem.terms:
         g = -np.ones(t.n_obs_scalar, np.int64)
