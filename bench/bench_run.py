@@ -143,7 +143,9 @@ def main() -> None:
         d = {"total": float("nan"), "sigma0": float("nan")} if args.no_direct else direct(cfg)
         rows["direct"].append(d["total"])
         sigma0["direct"] = d["sigma0"]
+        print(f"  direct {d['total']:.1f} s {d}", flush=True)     # each phase at once: a later failure keeps it
         res, tot = timed_run(cfg, "sync", 1, "serial")
+        print(f"  serial {tot:.1f} s, stages {res.stage_seconds}", flush=True)
         rows["serial"].append(tot)
         stages["serial"].append(res.stage_seconds)
         sigma0["serial"] = res.summary["sigma0"]
