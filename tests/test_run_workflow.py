@@ -84,6 +84,14 @@ def test_serial_run_adjusts_the_block(serial):
         flags = ds["qc_removed"].values
         assert np.all(ds["weight_factor"].values[flags] == 0.0) and np.all(ds["weight_factor"].values[~flags] > 0)
     assert int(flags.sum()) == q["image_observations_removed"] == out_by_decisions
+    # the final status of every observation (issue 27): in qc.nc, residuals.nc and the summary alike
+    with xr.open_dataset(out["adjustment"] / "qc.nc") as ds:
+        img = ds["status_kind"].values.astype(str) == "image"
+        st = ds["status_status"].values.astype(str)[img]
+        assert np.array_equal(np.sort(ds["status_index"].values[img]), np.arange(flags.size))
+    assert int(np.sum(st != "in")) == int(flags.sum())
+    assert sum(v for k, v in q["final_status"].items() if k.startswith("image ") and k != "image in") == flags.sum()
+    assert isinstance(q["clean"], bool) and (q["clean"] or q["flags"])
     assert "quality control: steps baarda" in (out["adjustment"] / "qc.txt").read_text()
     assert ">Quality control</h2>" in html
     # the report judges (issue 29): a verdict first, the QC decisions as a sortable table with its columns

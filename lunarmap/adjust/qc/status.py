@@ -77,15 +77,15 @@ def final_status(ledger: Ledger) -> xr.Dataset:
         elif d.kind == "control":
             ctl_last[d.index] = d
     for i in range(n):
-        d = last_img.get(i)
+        di = last_img.get(i)
         if active[i]:
-            if d is not None and d.action == "reinstated":
-                step[i], rnd[i], reason[i] = d.step, d.round, "given back"
+            if di is not None and di.action == "reinstated":
+                step[i], rnd[i], reason[i] = di.step, di.round, "given back"
             continue
-        if d is not None and d.action in _IMAGE_OUT:
-            status[i] = _IMAGE_OUT[d.action]
-            step[i], rnd[i], value[i] = d.step, d.round, d.value
-            reason[i] = d.group if d.action != "dropped" else "its point was left with fewer than 2 rays"
+        if di is not None and di.action in _IMAGE_OUT:
+            status[i] = _IMAGE_OUT[di.action]
+            step[i], rnd[i], value[i] = di.step, di.round, di.value
+            reason[i] = di.group if di.action != "dropped" else "its point was left with fewer than 2 rays"
             continue
         dp = last_pt.get(int(o.pt_idx[i]))
         if dp is not None:
@@ -107,14 +107,14 @@ def final_status(ledger: Ledger) -> xr.Dataset:
     if pri is not None:
         for k in np.flatnonzero(~pri.fixed):
             f = float(ledger.weights.control_sigma[k])
-            d = ctl_last.get(int(k))
-            rows.append(("control", int(k), -1, -1, int(pri.idx[k]), "down-weighted" if f > 1.0 else "in", d))
+            rows.append(("control", int(k), -1, -1, int(pri.idx[k]), "down-weighted" if f > 1.0 else "in",
+                         ctl_last.get(int(k))))
     for t, fac in enumerate(ledger.weights.term_sigma):
         table = getattr(ledger.terms[t], "row_table", None)
         img_of = table()["image"] if table is not None else np.full(fac.size, -1)
         for r in range(fac.size):
-            d = nav_last.get(r)
-            rows.append(("navigation", r, t, int(img_of[r]), -1, "down-weighted" if fac[r] > 1.0 else "in", d))
+            rows.append(("navigation", r, t, int(img_of[r]), -1, "down-weighted" if fac[r] > 1.0 else "in",
+                         nav_last.get(r)))
     if rows:
         kind = np.concatenate([kind, np.array([r[0] for r in rows], dtype=object)])
         index = np.concatenate([index, np.array([r[1] for r in rows], np.int64)])
