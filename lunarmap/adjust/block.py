@@ -201,12 +201,12 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
         Control-point weighting, see :meth:`ControlNetwork.priors`.
     unintersectable : {"raise", "best_guess"}
         A free point whose intersection is not finite, behind one of its cameras, farther than ``max_range``
-        times the block's median camera distance or farther from the reference sphere than the cameras' median
+        times a camera's height above the reference sphere or farther from the reference sphere than the cameras' median
         height is refused (``"raise"``), or started from its robust
         intersection or the model's prediction (``"best_guess"``; recorded in ``Block.starts``), for quality
         control to judge its rays (:func:`~lunarmap.adjust.start.screen_starts`).
     max_range : float
-        The distance bound of an intersection, times the block's median camera-to-point distance.
+        The distance bound of an intersection, times its camera's height above the reference sphere.
 
     Returns
     -------

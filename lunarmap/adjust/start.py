@@ -6,9 +6,9 @@ intersected point against two bounds:
 
 * in front of every camera that sees it: ``(X - O_i) . d_i > 0`` for each ray (origin ``O_i``, unit
   direction ``d_i`` towards the scene);
-* not too far: ``|X - O_i| <= max_range * R``, ``R`` the block's median camera-to-point distance (of the
-  points that pass the first bound). ``max_range = 10`` admits any real block (orbit altitudes within a
-  factor 10 of each other) and rejects a 2-ray point with a 1,000-pixel error;
+* not too far: ``|X - O_i| <= max_range * H_i``, ``H_i`` the height of camera ``i`` above the reference
+  sphere (without a radius: the block's median camera-to-point distance). ``max_range = 10`` admits
+  views up to 84 degrees off nadir and rejects nearly parallel rays meeting thousands of km away;
 * at a possible height (with the body's ``radius``): ``|h| <= H``, ``h = |X| - radius`` and ``H`` the
   median height of the cameras above the reference sphere: a point cannot be above the orbit it is
   seen from, nor as deep below the surface (topography is a few percent of any mapping orbit's height;
@@ -35,7 +35,7 @@ __all__ = ["screen_starts", "UNINTERSECTABLE", "MAX_RANGE"]
 
 #: what :func:`screen_starts` does with a point that cannot be intersected within the bounds
 UNINTERSECTABLE = ("raise", "best_guess")
-#: a point farther from one of its cameras than this many times the block's median camera-to-point distance is
+#: a point farther from one of its cameras than this many times that camera's height above the reference sphere is
 #: not an intersection
 MAX_RANGE = 10.0
 
@@ -63,6 +63,24 @@ def _violations(X: NDArray, pt_idx: NDArray, origins: NDArray, dirs: NDArray,
     far = np.zeros(n_pt)
     np.maximum.at(far, pt_idx, np.where(np.isfinite(dist), dist, np.inf))
     return nonfinite, behind & ~nonfinite, far
+
+
+def _ray_scale(origins: NDArray, radius: float | None, typical: float) -> NDArray:
+    """Per ray: the height of its camera above the sphere of ``radius`` (``typical`` where that is not positive
+    or no radius is given), length unit."""
+    if radius is None:
+        return np.full(origins.shape[0], typical)
+    h = np.linalg.norm(origins, axis=1) - float(radius)
+    return np.where(h > 0, h, typical)
+
+
+def _range_ratio(X: NDArray, pt_idx: NDArray, origins: NDArray, scale: NDArray, n_pt: int) -> NDArray:
+    """Per point: its largest camera distance over that ray's scale (:func:`_ray_scale`)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.linalg.norm(X[pt_idx] - origins, axis=1) / scale
+    out = np.zeros(n_pt)
+    np.maximum.at(out, pt_idx, np.where(np.isfinite(r), r, np.inf))
+    return out
 
 
 def _surface_guess(model, params: NDArray, cam_idx: NDArray, pt_idx: NDArray, xy: NDArray, pts: NDArray) -> NDArray:
@@ -124,7 +142,7 @@ def screen_starts(model, params: NDArray, obs, X: NDArray, check: NDArray[np.boo
     point_id : (n_pt,) point names, for the messages and the record.
     unintersectable : {"raise", "best_guess"}
     max_range : float
-        The distance bound, times the block's median camera-to-point distance.
+        The distance bound, times each camera's height above the reference sphere.
     radius : float, optional
         Radius of the reference sphere (metres): the height bound (module docstring); None: not applied.
 
@@ -148,7 +166,7 @@ def screen_starts(model, params: NDArray, obs, X: NDArray, check: NDArray[np.boo
     if unintersectable not in UNINTERSECTABLE:
         raise AdjustmentInputError(f"unintersectable must be one of {UNINTERSECTABLE}, got {unintersectable!r}")
     if not (np.isfinite(max_range) and max_range > 1.0):
-        raise AdjustmentInputError(f"max_range must be a number > 1 (times the median camera distance), "
+        raise AdjustmentInputError(f"max_range must be a number > 1 (times a camera's height), "
                                    f"got {max_range!r}")
     X = np.array(X, float)
     n_pt = X.shape[0]
@@ -165,10 +183,13 @@ def screen_starts(model, params: NDArray, obs, X: NDArray, check: NDArray[np.boo
     nonfinite, behind, far = _violations(X, pt, origins, dirs, n_pt)
     ok_pts = np.asarray(check, bool) & ~nonfinite & ~behind
     dist_ok = np.linalg.norm(X[pt] - origins, axis=1)[ok_pts[pt]]
-    # the block's typical camera distance from the points that pass the first bound; with none, from the rays'
-    # own surface hits is not cheaper to know, so the distance bound is then not applied
-    bound = max_range * float(np.median(dist_ok)) if dist_ok.size else np.inf
-    toofar = np.asarray(check, bool) & ~nonfinite & ~behind & (far > bound)
+    # each ray's distance scale: its camera's height above the reference sphere (a block whose cameras descend,
+    # Ranger's, spans altitudes a thousandfold), else the block's typical camera distance from the points that
+    # pass the first bound
+    scale = _ray_scale(origins, radius, float(np.median(dist_ok)) if dist_ok.size else np.inf)
+    ratio = _range_ratio(X, pt, origins, scale, n_pt)
+    bound = max_range
+    toofar = np.asarray(check, bool) & ~nonfinite & ~behind & (ratio > bound)
     h_bound = np.inf
     height_bad = np.zeros(n_pt, bool)
     if radius is not None:
@@ -188,7 +209,8 @@ def screen_starts(model, params: NDArray, obs, X: NDArray, check: NDArray[np.boo
     if unintersectable == "raise":
         j = int(pts[0])
         what = {"not finite": "not finite", "behind a camera": "behind one of its cameras",
-                "too far": f"{far[j] / 1000:.4g} km from a camera (bound {bound / 1000:.4g} km)",
+                "too far": f"{far[j] / 1000:.4g} km from a camera, {ratio[j]:.3g} times its height above the "
+                           f"reference sphere (bound {bound:g})",
                 "impossible height": f"{(np.linalg.norm(X[j]) - float(radius or 0.0)) / 1000:.4g} km above the "
                                      f"reference sphere (bound +-{h_bound / 1000:.4g} km)"}[str(reason[j])]
         counts = ", ".join(f"{int(np.sum(reason[pts] == r))} {r}"
@@ -206,9 +228,11 @@ def screen_starts(model, params: NDArray, obs, X: NDArray, check: NDArray[np.boo
     Xr = _robust_intersection(model, params, obs.cam_idx[sel], remap[obs.pt_idx[sel]], obs.xy[sel], obs.sigma[sel],
                               x0)
     o2, d2 = _rays(model, params, obs.cam_idx[sel], obs.xy[sel])
-    nf2, bh2, far2 = _violations(Xr, remap[obs.pt_idx[sel]], o2, d2, pts.size)
+    nf2, bh2, _ = _violations(Xr, remap[obs.pt_idx[sel]], o2, d2, pts.size)
+    ratio2 = _range_ratio(Xr, remap[obs.pt_idx[sel]], o2, _ray_scale(o2, radius, float(np.median(dist_ok))
+                                                                      if dist_ok.size else np.inf), pts.size)
     with np.errstate(invalid="ignore"):
-        ok_r = ~nf2 & ~bh2 & (far2 <= bound) & (np.abs(np.linalg.norm(Xr, axis=1) - float(radius or 0.0)) <= h_bound)
+        ok_r = ~nf2 & ~bh2 & (ratio2 <= bound) & (np.abs(np.linalg.norm(Xr, axis=1) - float(radius or 0.0)) <= h_bound)
     ok_g = np.all(np.isfinite(guess), axis=1)
     if not np.all(ok_r | ok_g):
         j = int(pts[np.argmax(~(ok_r | ok_g))])
@@ -226,6 +250,6 @@ def screen_starts(model, params: NDArray, obs, X: NDArray, check: NDArray[np.boo
                          "start": ("start_point", np.where(ok_r, "robust intersection", "model prediction")
                                    .astype(object)),
                          "moved": ("start_point", moved)})
-    starts.attrs["distance_bound"] = float(bound)
+    starts.attrs["distance_bound"] = float(bound)     # times each camera's height
     starts.attrs["height_bound"] = float(h_bound)
     return X, starts
