@@ -232,3 +232,29 @@ def test_quality_control_of_a_point_whose_rays_are_all_wrong_takes_them_out_or_s
     # the good rays are not taken with it beyond the type-I rate of the tests (truth: all other rays are good)
     others = np.setdiff1d(np.arange(m.pt_idx.size), k)
     assert np.mean(st["status"].values[img][others] != "in") < 0.05
+
+
+def test_a_step_that_fails_on_the_data_ends_the_run_flagged_not_raised(blunder_sim, monkeypatch):
+    """An exception of the adjustment raised inside a step (data the block accepted) ends the run on what it
+    has, with the step's error in the flags and a "failed" decision; a bad setting still raises."""
+    import lunarmap.adjust.qc as qcmod
+
+    def broken(ledger, **kw):
+        ledger.remove_image(0, "baarda", 1, value=9.0)
+        raise AdjustmentInputError("point 14 is behind a camera from every start value tried")
+
+    monkeypatch.setattr(qcmod, "snooping_step", broken)
+    with pytest.warns(QualityControlWarning, match="a step failed on the data: baarda: AdjustmentInputError"):
+        qc = quality_control(dlr_problem(blunder_sim), ("sequent", "baarda"), options=QCOptions(solver=OPTS))
+    assert qc.report.summary["steps_unfinished"] == ["baarda"]
+    assert any(d.kind == "step" and d.action == "failed" for d in qc.report.decisions)
+    # the removal made before the failure is in the final adjustment and in the status table
+    st = qc.report.final_status()
+    assert st["status"].values[0] == "removed" and qc.result.state.obs_weight[0] == 0.0
+
+    def bad_setting(ledger, **kw):
+        raise QualityControlInputError("the Baarda limit must be > 0")
+
+    monkeypatch.setattr(qcmod, "snooping_step", bad_setting)
+    with pytest.raises(QualityControlInputError):
+        quality_control(dlr_problem(blunder_sim), ("baarda",), options=QCOptions(solver=OPTS))
