@@ -309,6 +309,17 @@ def test_a_worker_killed_mid_run_does_not_change_the_results(example, serial):
     assert np.max(np.abs(a - b) / np.abs(b).max()) <= 1e-9
 
 
+def test_a_qc_budget_in_the_run_is_spent_and_flagged(example, serial):
+    """``max_rounds = 0``: the run's quality control is the first adjustment only; its summary and report say the
+    block is not clean, and why (the warning is logged, not raised into the run)."""
+    cfg = _config(example, "budget", **{"baarda_limit = 4.0": "baarda_limit = 4.0\nmax_rounds = 0"})
+    res = run(cfg, scheduler="sync")
+    q = res.summary["qc"]
+    assert q["clean"] is False and any("budget of 0" in f for f in q["flags"])
+    assert q["image_observations_removed"] == 0 and q["final_status"]["image in"] == q["image_observations"]
+    assert "quality control ended without a clean block" in res.report.read_text()
+
+
 def test_bad_configurations_are_named(example, tmp_path):
     base = example.read_text()
     cases = [
@@ -328,6 +339,9 @@ def test_bad_configurations_are_named(example, tmp_path):
          "adjust.qc.robust_function must be one of"),
         (base.replace('robust_scale = "mad"', 'robust_scale = "iqr"'), "adjust.qc.robust_scale must be one of"),
         (base.replace("baarda_limit = 4.0", "baarda_limit = 4.0\nalpha = 0.001"), "unknown key adjust.qc.alpha"),
+        (base.replace("baarda_limit = 4.0", "baarda_limit = 4.0\nmax_seconds = -1.0"),
+         "adjust.qc.max_seconds must be >= 0"),
+        (base.replace("baarda_limit = 4.0", "baarda_limit = 4.0\nmax_rounds = 2.5"), "adjust.qc.max_rounds must be"),
         (base.replace("baarda_limit = 4.0", 'baarda_limit = 4.0\nbaarda_separable = "yes"'),
          "adjust.qc.baarda_separable must be"),
         (base[:base.index("[adjust.navigation]")] + base[base.index("[adjust.qc]"):].replace(

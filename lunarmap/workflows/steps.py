@@ -739,7 +739,8 @@ def _quality_control(block: Any, names: Sequence[str], groups: Sequence[str], qc
         variance={"on_weak": "keep", "rounds": 20},
         # the paper's two stages (candidates from the residuals, then only the significant ones): the forward
         # selection adjusts once per candidate and round, too slow for a run's dozens of navigation groups
-        offsets={"select": "all"})
+        offsets={"select": "all"},
+        max_rounds=qc.get("max_rounds"), max_seconds=qc.get("max_seconds"))
     import warnings
 
     from ..errors import QualityControlWarning
