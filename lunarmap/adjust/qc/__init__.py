@@ -14,6 +14,9 @@
   (:func:`~lunarmap.adjust.variance.estimate_variance_components`);
 * ``"offsets"`` -- two-stage detection of per-orbit navigation offsets and drifts (:mod:`.offsets`).
 
+Every run ends with a final status per observation (:mod:`.status`) and a verdict on whether the block
+it leaves is clean (:mod:`.ending`: a :class:`~lunarmap.errors.QualityControlWarning` and report flags if not).
+
 Indices never change (:mod:`.ledger`): removed observations get weight 0, points without rays are
 held fixed, so the :class:`QCReport` refers to the user's own observations, points and images.
 """
@@ -200,12 +203,26 @@ def quality_control(problem: BundleProblem, steps: Sequence[str] = ("sequent", "
     image_group_names : list of str, optional
     options : QCOptions, optional
 
+    The run's cost is bounded by ``QCOptions.max_rounds`` / ``max_seconds`` (:class:`~.ending.Budget`); a step
+    the budget does not reach is skipped. A step that fails on the data (an adjustment error inside it) ends
+    the run on what it has: its error is a flag and a ``"failed"`` decision, not an exception. The report's
+    :meth:`~.report.QCReport.final_status` gives every observation's final status.
+
     Raises
     ------
     QualityControlInputError
-        An unknown or repeated step, or a bad setting of a step.
+        An unknown or repeated step, a bad setting of a step, a bad budget.
     VarianceComponentError
         A group whose variance component cannot be estimated (unless ``variance={"on_weak": "keep"}``).
+    AdjustmentError
+        The first adjustment fails (there is no result to report).
+
+    Warns
+    -----
+    QualityControlWarning
+        The run ended without a clean block (:func:`~.ending.assess`: budget spent, a step failed, sigma0
+        outside its chi-square bounds, large w-tests or untestable residuals left, no redundancy); the flags
+        are in ``report.summary["flags"]`` and ``report.clean`` is False.
     """
     opt = options or QCOptions()
     steps = list(steps)
@@ -343,6 +360,7 @@ def _run_step(step: str, steps: list, ledger: Ledger, problem: BundleProblem, op
                                           start=ledger.result, terms=ledger.terms, **kw)
         ledger.weights = vc.weights
         ledger.result = vc.result
+        ledger.budget.rounds += len(vc.history)     # its adjustments, made outside the ledger, count too
         for name, f, e in zip(vc.names, vc.scale, vc.estimated):
             ledger.decisions.append(Decision("variance", len(vc.history), "group", 0, value=float(f),
                                              action="sigma scaled" if e else "kept", group=name))
