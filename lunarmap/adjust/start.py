@@ -40,16 +40,6 @@ UNINTERSECTABLE = ("raise", "best_guess")
 MAX_RANGE = 10.0
 
 
-def _rays(model, params: NDArray, cam_idx: NDArray, xy: NDArray) -> tuple[NDArray, NDArray]:
-    sensors = model.adjusted(params) if np.any(params) else model.sensors
-    origins = np.empty((cam_idx.size, 3))
-    dirs = np.empty((cam_idx.size, 3))
-    for k in np.unique(cam_idx):
-        m = cam_idx == k
-        origins[m], dirs[m] = sensors[k].rays(xy[m, 0], xy[m, 1])
-    return origins, dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
-
-
 def _violations(X: NDArray, pt_idx: NDArray, origins: NDArray, dirs: NDArray,
                 n_pt: int) -> tuple[NDArray, NDArray, NDArray]:
     """Per point: not finite, behind a camera, farthest camera distance (length unit)."""
@@ -179,7 +169,7 @@ def screen_starts(model, params: NDArray, obs, X: NDArray, check: NDArray[np.boo
     if not use.any():
         return X, empty
     cam, pt, xy = obs.cam_idx[use], obs.pt_idx[use], obs.xy[use]
-    origins, dirs = _rays(model, params, cam, xy)
+    origins, dirs = model.rays(params, cam, xy)
     nonfinite, behind, far = _violations(X, pt, origins, dirs, n_pt)
     ok_pts = np.asarray(check, bool) & ~nonfinite & ~behind
     dist_ok = np.linalg.norm(X[pt] - origins, axis=1)[ok_pts[pt]]
@@ -227,7 +217,7 @@ def screen_starts(model, params: NDArray, obs, X: NDArray, check: NDArray[np.boo
                   np.where(np.all(np.isfinite(X[pts]), axis=1)[:, None], X[pts], 0.0))
     Xr = _robust_intersection(model, params, obs.cam_idx[sel], remap[obs.pt_idx[sel]], obs.xy[sel], obs.sigma[sel],
                               x0)
-    o2, d2 = _rays(model, params, obs.cam_idx[sel], obs.xy[sel])
+    o2, d2 = model.rays(params, obs.cam_idx[sel], obs.xy[sel])
     nf2, bh2, _ = _violations(Xr, remap[obs.pt_idx[sel]], o2, d2, pts.size)
     ratio2 = _range_ratio(Xr, remap[obs.pt_idx[sel]], o2, _ray_scale(o2, radius, float(np.median(dist_ok))
                                                                       if dist_ok.size else np.inf), pts.size)
