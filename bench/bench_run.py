@@ -10,6 +10,9 @@ In one invocation, on the same example data (``lunarmap.workflows.write_example`
 * ``cluster``: ``run(..., workers=N)`` on a fresh ``LocalCluster`` of N processes, fresh run folder;
 * ``rerun``: the serial run again (everything reused).
 
+``--no-qc`` runs without the configuration's ``[adjust.qc]``: the direct calls have no QC, so the overhead is
+then measured on the same work (with QC, the single adjust task's snooping rounds add serial time).
+
 Rounds alternate the three fresh runs; medians are reported. Prints one table and appends a JSON line to
 ``bench/results/run.jsonl``. Usage::
 
@@ -122,6 +125,9 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--screenshot", action="store_true")
+    ap.add_argument("--no-qc", action="store_true",
+                    help="runs without the configuration's [adjust.qc] (the direct calls have none): "
+                         "orchestration compared on the same work")
     args = ap.parse_args()
     from lunarmap.workflows import load_config, write_example
 
@@ -135,7 +141,9 @@ def main() -> None:
         write_example(folder, **kw)
         print(f"example written in {time.perf_counter() - c:.1f} s")
     cfg = load_config(toml)
-    print(f"{len(cfg.images)} images; load average {os.getloadavg()[0]:.2f}")
+    if args.no_qc:
+        cfg = cfg.__class__(**{**cfg.__dict__, "qc": None})
+    print(f"{len(cfg.images)} images; load average {os.getloadavg()[0]:.2f}; QC {cfg.qc.steps if cfg.qc else 'none'}")
     rows: dict[str, list] = {"direct": [], "serial": [], "cluster": []}
     stages: dict[str, list] = {"serial": [], "cluster": []}
     sigma0 = {}
@@ -143,7 +151,9 @@ def main() -> None:
         d = {"total": float("nan"), "sigma0": float("nan")} if args.no_direct else direct(cfg)
         rows["direct"].append(d["total"])
         sigma0["direct"] = d["sigma0"]
+        print(f"  direct {d['total']:.1f} s {d}", flush=True)     # each phase at once: a later failure keeps it
         res, tot = timed_run(cfg, "sync", 1, "serial")
+        print(f"  serial {tot:.1f} s, stages {res.stage_seconds}", flush=True)
         rows["serial"].append(tot)
         stages["serial"].append(res.stage_seconds)
         sigma0["serial"] = res.summary["sigma0"]
@@ -156,7 +166,7 @@ def main() -> None:
     from lunarmap.workflows import run
 
     c = time.perf_counter()
-    again = run(load_config(toml).__class__(**{**cfg.__dict__, "output": cfg.output.parent / f"{cfg.output.name}_serial"}),
+    again = run(cfg.__class__(**{**cfg.__dict__, "output": cfg.output.parent / f"{cfg.output.name}_serial"}),
                 scheduler="sync", report=True)
     t_rerun = time.perf_counter() - c
     med = {k: statistics.median(v) for k, v in rows.items()}

@@ -27,6 +27,25 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def _status_mb(key: str) -> float:
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith(key):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def phase_peak() -> float:
+    """Peak RSS (MB) since the last call, then reset (Linux ``/proc/self/clear_refs``; NaN elsewhere)."""
+    try:
+        peak = _status_mb("VmHWM:")
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+        return peak
+    except OSError:
+        return float("nan")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("bal")
@@ -37,6 +56,8 @@ def main(argv=None):
     ap.add_argument("--no-datum-check", action="store_true")
     ap.add_argument("--time-limit", type=float, default=0.0, help="accepted for harness compatibility (unused)")
     args = ap.parse_args(argv)
+    phase_peak()
+    base = _status_mb("VmRSS:") if os.path.exists("/proc/self/status") else float("nan")
     t0 = time.perf_counter()
     data = read_bal(args.bal)
     t_read = time.perf_counter() - t0
@@ -44,8 +65,10 @@ def main(argv=None):
     problem = bal_to_problem(data)
     opts = SolverOptions(ftol=args.ftol, max_iterations=args.max_iterations, backend=args.backend,
                          check_datum=not args.no_datum_check)
+    peak_read = phase_peak()
     res = solve(problem, opts)
     t_solve = time.perf_counter() - t0
+    peak_solve = phase_peak()
     out = {
         "solver": f"lunarmap-{args.backend}",
         "problem": os.path.basename(args.bal),
@@ -66,6 +89,15 @@ def main(argv=None):
         sig = np.sqrt(np.diagonal(pr.pt_cov, axis1=1, axis2=2))
         out["median_point_sigma"] = float(np.median(sig[np.isfinite(sig).all(axis=1)]))
         out["undetermined_points"] = int(len(pr.undetermined_points))
+        peak_prec = phase_peak()
+        out["peak_rss_precision_mb"] = round(peak_prec, 1)
+        out["bytes_per_obs_precision"] = round((peak_prec - base) * 2**20 / problem.obs.n, 1)
+    # the adjustment's memory per image observation: peak above the process after its imports (the BAL
+    # data, the problem, the solver's arrays and factor), MB -> bytes per observation
+    out["rss_after_imports_mb"] = round(base, 1)
+    out["peak_rss_read_mb"] = round(peak_read, 1)
+    out["peak_rss_solve_mb"] = round(peak_solve, 1)
+    out["bytes_per_obs_solve"] = round((max(peak_read, peak_solve) - base) * 2**20 / problem.obs.n, 1)
     try:
         sys.path.insert(0, SHARED)
         import balutil as bu

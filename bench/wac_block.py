@@ -25,30 +25,14 @@ import time
 import numpy as np
 
 import lunarmap
-from lunarmap.adjust import ControlNetwork, NavigationSpec, merge_networks, network_from_tiepoints
+from lunarmap.adjust import NavigationSpec, merge_networks, network_from_tiepoints
 from lunarmap.simulate import render_image
 from lunarmap.simulate.orbits import wac_like_camera
 from lunarmap.simulate.terrain import synthetic_scene
+from lunarmap.simulate.wac_block import measure_points
 
 FRAMELETS = 60       # 240 image lines per image
 DELAY = 1.0          # s between framelets: small gaps between them, as in the WAC's even/odd images
-
-
-def measured(cams: dict, X: np.ndarray, kind: str, rng: np.random.Generator, sigma: float) -> ControlNetwork:
-    pid, img, ls = [], [], []
-    names = list(cams)
-    for i, x in enumerate(X):
-        for j, name in enumerate(names):
-            li, sa = cams[name].ground_to_image(x)
-            if np.isfinite(li):
-                pid.append(i)
-                img.append(j)
-                ls.append([li + rng.normal(0, sigma), sa + rng.normal(0, sigma)])
-    keep = np.unique(pid)
-    return ControlNetwork(point_id=[f"{kind}{i}" for i in keep], point_type=[kind] * keep.size, xyz=X[keep],
-                          measure_point=np.searchsorted(keep, pid), measure_image=np.array(img),
-                          line_sample=np.array(ls), measure_sigma=np.full(len(pid), sigma), image_id=names,
-                          xyz_cov=np.tile(np.eye(3) * 0.5 ** 2, (keep.size, 1, 1)) if kind == "control" else None)
 
 
 def main() -> None:
@@ -84,8 +68,8 @@ def main() -> None:
     seen = np.array([[np.isfinite(c.ground_to_image(x)[0]) for c in truth.values()] for x in g])
     g = g[seen[:, :2].any(axis=1) & seen[:, 2:].any(axis=1)]      # seen from both orbits
     g = g[rng.permutation(g.shape[0])]
-    control = measured(truth, g[:8], "control", rng, 0.2)
-    check = measured(truth, g[8:40], "check", rng, 0.2)
+    control = measure_points(truth, g[:8], "control", 0.2, rng)
+    check = measure_points(truth, g[8:40], "check", 0.2, rng)
     net = merge_networks(network_from_tiepoints(ties), control, check)
     t = time.perf_counter()
     t_half = 0.5 * (FRAMELETS - 1) * DELAY

@@ -74,6 +74,7 @@ __all__ = [
     "DtmCrsError",
     "DtmCoverageError",
     "QualityControlInputError",
+    "QualityControlWarning",
     "VarianceComponentError",
 ]
 
@@ -397,6 +398,12 @@ class QualityControlError(AdjustmentError):
 class QualityControlInputError(QualityControlError, AdjustmentInputError):
     """A quality-control setting is unusable: a limit <= 0, an unknown step or weight function, groups
     that do not fit the block."""
+
+
+class QualityControlWarning(LunarmapWarning):
+    """Quality control ended without a clean block: its budget spent, a step failed on the data, sigma0
+    outside its chi-square bounds, w-tests or untestable residuals above the limit left (the message lists
+    them; ``QCReport.summary["flags"]`` has them one by one)."""
 
 
 class VarianceComponentError(QualityControlError, AdjustmentInputError):

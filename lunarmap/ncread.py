@@ -150,8 +150,11 @@ def load_netcdf(path: str | os.PathLike[str], error: type[LunarmapError], what: 
                "memory": f"reading it needs more than {memory_bound(len(data)) >> 20} MB (10 x its size + 64 MB): "
                          "damaged sizes"}.get(state, "the netCDF library crashed opening it")
         raise error(f"{what} {p} is not a readable netCDF file: {why} (a damaged file)")
+    from .io.nclock import netcdf_library
+
     try:
-        nc = netCDF4.Dataset(str(p), mode="r", memory=data)
+        with netcdf_library():       # netCDF-C is not thread-safe; xarray below takes the same lock itself
+            nc = netCDF4.Dataset(str(p), mode="r", memory=data)
     except Exception as err:  # noqa: BLE001 - whatever the netCDF stack raises on a bad file, named here
         raise error(f"{what} {p} is not a readable netCDF file: {type(err).__name__}: {err}") from err
     try:
@@ -173,5 +176,6 @@ def load_netcdf(path: str | os.PathLike[str], error: type[LunarmapError], what: 
     except Exception as err:  # noqa: BLE001
         raise error(f"{what} {p} is not a readable netCDF file: {type(err).__name__}: {err}") from err
     finally:
-        if nc.isopen():
-            nc.close()
+        with netcdf_library():
+            if nc.isopen():
+                nc.close()

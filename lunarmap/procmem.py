@@ -56,23 +56,69 @@ class PeakRss:
         return max(self.peak_mb - self.start_mb, 0.0)
 
 
+class _Sampler:
+    """One daemon thread per process that samples the resident memory while any block is being watched.
+
+    A thread per watched block cost a thread start and join for every run step, also for the thousands
+    of steps a rerun only finds in its store; this one starts once (again after a fork) and idles, without
+    sampling, while nothing is watched.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._watched: dict[int, tuple[PeakRss, float]] = {}
+        self._wake = threading.Condition(self._lock)
+        self._pid = 0
+
+    def _ensure_thread(self) -> None:
+        import os
+
+        if self._pid != os.getpid():       # first use, or a forked child without the parent's thread
+            self._pid = os.getpid()
+            self._watched = {}
+            self._wake = threading.Condition(self._lock)
+            threading.Thread(target=self._loop, name="lunarmap-rss", daemon=True).start()
+
+    def _loop(self) -> None:
+        with self._lock:
+            while True:
+                while not self._watched:
+                    self._wake.wait()
+                interval = min(iv for _, iv in self._watched.values())
+                self._wake.wait(interval)
+                if self._watched:
+                    now = rss_mb()
+                    for out, _ in self._watched.values():
+                        out.peak_mb = max(out.peak_mb, now)
+
+    def watch(self, out: PeakRss, interval: float) -> None:
+        with self._lock:
+            self._ensure_thread()
+            self._watched[id(out)] = (out, interval)
+            self._wake.notify()
+
+    def unwatch(self, out: PeakRss) -> None:
+        with self._lock:
+            self._watched.pop(id(out), None)
+
+
+_SAMPLER = _Sampler()
+
+
 @contextlib.contextmanager
 def peak_rss_during(interval: float = 0.05) -> Iterator[PeakRss]:
-    """Sample the resident memory every ``interval`` seconds while the block runs (a daemon thread)."""
-    out = PeakRss(rss_mb(), rss_mb())
-    stop = threading.Event()
+    """Sample the resident memory every ``interval`` seconds while the block runs (one daemon thread per process).
 
-    def sample() -> None:
-        while not stop.wait(interval):
-            out.peak_mb = max(out.peak_mb, rss_mb())
-
-    th = threading.Thread(target=sample, name="lunarmap-rss", daemon=True)
-    th.start()
+    Blocks may nest and run in several threads at once; each sees the process's resident memory, so
+    concurrent blocks share their peaks.
+    """
+    now = rss_mb()
+    out = PeakRss(now, now)
+    _SAMPLER.watch(out, interval)
     try:
         yield out
     finally:
-        stop.set()
-        th.join()
+        _SAMPLER.unwatch(out)
         out.peak_mb = max(out.peak_mb, rss_mb())
 
 

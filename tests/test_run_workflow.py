@@ -84,6 +84,14 @@ def test_serial_run_adjusts_the_block(serial):
         flags = ds["qc_removed"].values
         assert np.all(ds["weight_factor"].values[flags] == 0.0) and np.all(ds["weight_factor"].values[~flags] > 0)
     assert int(flags.sum()) == q["image_observations_removed"] == out_by_decisions
+    # the final status of every observation (issue 27): in qc.nc, residuals.nc and the summary alike
+    with xr.open_dataset(out["adjustment"] / "qc.nc") as ds:
+        img = ds["status_kind"].values.astype(str) == "image"
+        st = ds["status_status"].values.astype(str)[img]
+        assert np.array_equal(np.sort(ds["status_index"].values[img]), np.arange(flags.size))
+    assert int(np.sum(st != "in")) == int(flags.sum())
+    assert sum(v for k, v in q["final_status"].items() if k.startswith("image ") and k != "image in") == flags.sum()
+    assert isinstance(q["clean"], bool) and (q["clean"] or q["flags"])
     assert "quality control: steps baarda" in (out["adjustment"] / "qc.txt").read_text()
     assert ">Quality control</h2>" in html
     # the report judges (issue 29): a verdict first, the QC decisions as a sortable table with its columns
@@ -301,6 +309,17 @@ def test_a_worker_killed_mid_run_does_not_change_the_results(example, serial):
     assert np.max(np.abs(a - b) / np.abs(b).max()) <= 1e-9
 
 
+def test_a_qc_budget_in_the_run_is_spent_and_flagged(example, serial):
+    """``max_rounds = 0``: the run's quality control is the first adjustment only; its summary and report say the
+    block is not clean, and why (the warning is logged, not raised into the run)."""
+    cfg = _config(example, "budget", **{"baarda_limit = 4.0": "baarda_limit = 4.0\nmax_rounds = 0"})
+    res = run(cfg, scheduler="sync")
+    q = res.summary["qc"]
+    assert q["clean"] is False and any("budget of 0" in f for f in q["flags"])
+    assert q["image_observations_removed"] == 0 and q["final_status"]["image in"] == q["image_observations"]
+    assert "quality control ended without a clean block" in res.report.read_text()
+
+
 def test_bad_configurations_are_named(example, tmp_path):
     base = example.read_text()
     cases = [
@@ -320,6 +339,9 @@ def test_bad_configurations_are_named(example, tmp_path):
          "adjust.qc.robust_function must be one of"),
         (base.replace('robust_scale = "mad"', 'robust_scale = "iqr"'), "adjust.qc.robust_scale must be one of"),
         (base.replace("baarda_limit = 4.0", "baarda_limit = 4.0\nalpha = 0.001"), "unknown key adjust.qc.alpha"),
+        (base.replace("baarda_limit = 4.0", "baarda_limit = 4.0\nmax_seconds = -1.0"),
+         "adjust.qc.max_seconds must be >= 0"),
+        (base.replace("baarda_limit = 4.0", "baarda_limit = 4.0\nmax_rounds = 2.5"), "adjust.qc.max_rounds must be"),
         (base.replace("baarda_limit = 4.0", 'baarda_limit = 4.0\nbaarda_separable = "yes"'),
          "adjust.qc.baarda_separable must be"),
         (base[:base.index("[adjust.navigation]")] + base[base.index("[adjust.qc]"):].replace(

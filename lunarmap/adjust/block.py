@@ -40,6 +40,7 @@ from .problem import BundleProblem
 from .result import AdjustmentResult
 from .sensors import SensorImageModel
 from .solver import SolverOptions, solve
+from .start import MAX_RANGE, screen_starts
 from .terrain import DtmHeights, ReferenceDtm, dtm_heights
 
 __all__ = ["NavigationSpec", "Block", "BlockResult", "build_block", "solve_block", "navigation_observations"]
@@ -164,6 +165,8 @@ class Block:
     navigation : NavigationObservations or None
     terrain : list of DtmHeights
         The reference-DTM terms (one per DTM), in the order given.
+    starts : xarray.Dataset or None
+        The start-value decisions of :func:`build_block` (points started from a best guess, and why).
     """
 
     names: list[str]
@@ -172,6 +175,9 @@ class Block:
     problem: BundleProblem
     navigation: NavigationObservations | None
     terrain: list[DtmHeights] = field(default_factory=list)
+    #: points whose intersection failed its bounds and were started from a best guess, with why
+    #: (:func:`~lunarmap.adjust.start.screen_starts`); None for a block not built by :func:`build_block`
+    starts: xr.Dataset | None = None
 
     @property
     def sensors(self) -> dict[str, SensorModel]:
@@ -180,7 +186,8 @@ class Block:
 
 def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr.Dataset, *, degree: int = 1,
                 navigation: NavigationSpec | None = None, times: Mapping[str, float] | None = None,
-                representation: str = "covariance", terrain: Sequence[ReferenceDtm] = ()) -> Block:
+                representation: str = "covariance", terrain: Sequence[ReferenceDtm] = (),
+                unintersectable: str = "raise", max_range: float = MAX_RANGE) -> Block:
     """Build an adjustment block (see the module docstring).
 
     Parameters
@@ -201,6 +208,14 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
     terrain : sequence of ReferenceDtm
         Reference DTMs whose heights observe the tie points inside them (:mod:`lunarmap.adjust.terrain`);
         points outside a DTM or on its NaN nodes are skipped (``block.terrain[k].skipped``).
+    unintersectable : {"raise", "best_guess"}
+        A free point whose intersection is not finite, behind one of its cameras, farther than ``max_range``
+        times a camera's height above the reference sphere or farther from the reference sphere than the cameras' median
+        height is refused (``"raise"``), or started from its robust
+        intersection or the model's prediction (``"best_guess"``; recorded in ``Block.starts``), for quality
+        control to judge its rays (:func:`~lunarmap.adjust.start.screen_starts`).
+    max_range : float
+        The distance bound of an intersection, times its camera's height above the reference sphere.
 
     Returns
     -------
@@ -212,7 +227,7 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
     ------
     AdjustmentInputError
         Measurements on images that have no sensor model (named), points that cannot be
-        intersected.
+        intersected within the bounds (with ``unintersectable="raise"``; the count, the first and why).
     UnobservedParameterError
         An image without measurements (named), a free point with fewer than two rays.
     DistortionPartialsError
@@ -251,9 +266,12 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
         use = multi[obs.pt_idx]
         remap = -np.ones(net.n_points, np.int64)
         remap[multi] = np.arange(int(multi.sum()))
-        refined = intersect_points(model, params0, obs.cam_idx[use], remap[obs.pt_idx[use]], obs.xy[use],
-                                   obs.sigma[use], n_pt=int(multi.sum()), x0=X0[multi])
+        with np.errstate(all="ignore"):
+            refined = intersect_points(model, params0, obs.cam_idx[use], remap[obs.pt_idx[use]], obs.xy[use],
+                                       obs.sigma[use], n_pt=int(multi.sum()), x0=X0[multi])
         X0[multi] = refined.xyz
+    X0, starts = screen_starts(model, params0, obs, X0, multi, net.point_id, unintersectable, max_range,
+                               net.radius)
     bad = ~np.all(np.isfinite(X0), axis=1)
     if bad.any():
         first = net.point_id[np.argmax(bad)]
@@ -272,7 +290,7 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
         dtms.append(dtm_heights(ref, X0, model.n_images * model.n_params, model.n_images, cand, net.point_id))
     terms += dtms
     problem = net.to_problem(model, params0, points=X0, terms=terms, representation=representation)
-    return Block(names, model, net, problem, nav, dtms)
+    return Block(names, model, net, problem, nav, dtms, starts)
 
 
 @dataclass

@@ -164,6 +164,22 @@ class SensorImageModel:
     def linearize_indexed(self, params: NDArray, cam_idx: NDArray, points: NDArray, pt_idx: NDArray):
         return self.linearize(params, cam_idx, np.asarray(points)[np.asarray(pt_idx, dtype=np.int64)])
 
+    def rays(self, params: NDArray, cam_idx: NDArray, xy: NDArray) -> tuple[NDArray, NDArray]:
+        """Origins and unit directions ``(n, 3)`` of the image observations' rays, metres, from the sensors
+        corrected by ``params`` (:meth:`adjusted`)."""
+        sensors = self.adjusted(params) if np.any(params) else self.sensors
+        origins, dirs = self._rays(sensors, np.asarray(cam_idx, dtype=np.int64), np.asarray(xy, dtype=float))
+        return origins, dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+
+    @staticmethod
+    def _rays(sensors: Sequence[SensorModel], cam_idx: NDArray, xy: NDArray) -> tuple[NDArray, NDArray]:
+        origins = np.empty((cam_idx.size, 3))
+        dirs = np.empty((cam_idx.size, 3))
+        for i in np.unique(cam_idx):
+            m = cam_idx == i
+            origins[m], dirs[m] = sensors[i].rays(xy[m, 0], xy[m, 1])
+        return origins, dirs
+
     def initial_points(self, params: NDArray, cam_idx: NDArray, pt_idx: NDArray, xy: NDArray, n_pt: int,
                        height: float = 0.0) -> NDArray[np.float64]:
         """Start values ``(n_pt, 3)`` metres: the point nearest (least squares) to its rays.
@@ -175,11 +191,7 @@ class SensorImageModel:
         pt_idx = np.asarray(pt_idx, dtype=np.int64)
         xy = np.asarray(xy, dtype=float)
         sensors = self.adjusted(params) if np.any(params) else self.sensors
-        origins = np.empty((cam_idx.size, 3))
-        dirs = np.empty((cam_idx.size, 3))
-        for i in np.unique(cam_idx):
-            m = cam_idx == i
-            origins[m], dirs[m] = sensors[i].rays(xy[m, 0], xy[m, 1])
+        origins, dirs = self._rays(sensors, cam_idx, xy)
         count = np.bincount(pt_idx, minlength=n_pt)
         X = np.full((n_pt, 3), np.nan)
         multi = count >= 2

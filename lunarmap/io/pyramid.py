@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 
 from ..atomic import atomic_path
 from ..errors import ImageWindowError, InvalidInputError, PyramidError
+from .nclock import close_dataset, netcdf_library
 from .window import PixelSource, WindowSource
 
 __all__ = ["write_pyramid", "Pyramid", "pyramid_shapes", "MIN_LEVEL_SIZE"]
@@ -109,20 +110,26 @@ def write_pyramid(source: WindowSource, path: str | os.PathLike[str], levels: in
     final = Path(path)
     try:
         with atomic_path(final) as tmp:
-            with netCDF4.Dataset(tmp, "w", format="NETCDF4") as ds:
-                ds.setncatts({"format": _FORMAT, "source": getattr(source, "name", ""), "lines": h0, "samples": w0,
-                              "levels": k, "saturation": "none" if saturation is None else float(saturation),
-                              "digest": digest, "pixel_convention": "CSM: level k pixel centre at (i + 0.5) 2^k",
-                              **(attrs or {})})
-                var = []
-                for lev, (h, w) in enumerate(shapes, start=1):
-                    ds.createDimension(f"line_{lev}", h)
-                    ds.createDimension(f"sample_{lev}", w)
-                    v = ds.createVariable(f"level_{lev}", "f4", (f"line_{lev}", f"sample_{lev}"),
-                                          chunksizes=(min(_CHUNK, h), min(_CHUNK, w)), fill_value=np.float32(np.nan))
-                    v.set_auto_mask(False)
-                    v.long_name = f"mean of 2^{lev} x 2^{lev} image pixels"
-                    var.append(v)
+            # netCDF-C/HDF5 calls under the process's lock (lunarmap.io.nclock); the source's stripes are
+            # read outside it (a netCDF source takes it itself)
+            with netcdf_library():
+                ds = netCDF4.Dataset(tmp, "w", format="NETCDF4")
+            try:
+                with netcdf_library():
+                    ds.setncatts({"format": _FORMAT, "source": getattr(source, "name", ""), "lines": h0, "samples": w0,
+                                  "levels": k, "saturation": "none" if saturation is None else float(saturation),
+                                  "digest": digest, "pixel_convention": "CSM: level k pixel centre at (i + 0.5) 2^k",
+                                  **(attrs or {})})
+                    var = []
+                    for lev, (h, w) in enumerate(shapes, start=1):
+                        ds.createDimension(f"line_{lev}", h)
+                        ds.createDimension(f"sample_{lev}", w)
+                        v = ds.createVariable(f"level_{lev}", "f4", (f"line_{lev}", f"sample_{lev}"),
+                                              chunksizes=(min(_CHUNK, h), min(_CHUNK, w)),
+                                              fill_value=np.float32(np.nan))
+                        v.set_auto_mask(False)
+                        v.long_name = f"mean of 2^{lev} x 2^{lev} image pixels"
+                        var.append(v)
                 # stripes start at multiples of 2^k lines, so every level's rows of a stripe are whole
                 # blocks of the level below; the last stripe's odd lines drop out as in build_pyramid
                 for r0 in range(0, h0 if k else 0, stripe):
@@ -136,7 +143,10 @@ def write_pyramid(source: WindowSource, path: str | os.PathLike[str], levels: in
                         a0 = r0 // 2 ** lev
                         rows = min(a.shape[0], h - a0)
                         if rows > 0:
-                            var[lev - 1][a0:a0 + rows, :] = a[:rows].astype(np.float32)
+                            with netcdf_library():
+                                var[lev - 1][a0:a0 + rows, :] = a[:rows].astype(np.float32)
+            finally:
+                close_dataset(ds)
     except (ImageWindowError, InvalidInputError):
         raise
     except (OSError, RuntimeError) as err:
@@ -175,7 +185,7 @@ class Pyramid:
         if not os.path.isfile(self.path):
             raise PyramidError(f"pyramid {self.path} does not exist")
         try:
-            with netCDF4.Dataset(self.path, "r") as ds:
+            with netcdf_library(), netCDF4.Dataset(self.path, "r") as ds:
                 att = {a: ds.getncattr(a) for a in ds.ncattrs()}
                 stored = {n: tuple(int(d) for d in v.shape) for n, v in ds.variables.items()}
         except (OSError, RuntimeError, ValueError) as err:

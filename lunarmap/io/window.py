@@ -146,6 +146,12 @@ class PixelSource:
             return handle
 
     def _open_netcdf(self, p: Path) -> Any:
+        from .nclock import netcdf_library
+
+        with netcdf_library():
+            return self._open_netcdf_locked(p)
+
+    def _open_netcdf_locked(self, p: Path) -> Any:
         import netCDF4
 
         ds = netCDF4.Dataset(p, "r")
@@ -153,7 +159,7 @@ class PixelSource:
         names = [self.variable] if self.variable else [n for n, v in ds.variables.items()
                                                         if n not in ds.dimensions and v.ndim >= 2]
         if len(names) != 1 or names[0] not in ds.variables:
-            ds.close()
+            ds.close()     # under the lock already
             raise ImageWindowError(f"netCDF image {p}: give one 2-D pixel variable (found {names or 'none'})")
         var = ds.variables[names[0]]
         if var.ndim != 2:
@@ -182,8 +188,7 @@ class PixelSource:
         handle = self._open()
         try:
             if isinstance(handle, _NetcdfVariable):
-                with self._lock:                          # netCDF4/HDF5 handles are not thread-safe
-                    block = handle.read(l0, l1, s0, s1)
+                block = handle.read(l0, l1, s0, s1)       # under the process's netCDF lock
             else:
                 block = handle[self.band, l0:l1, s0:s1].compute(scheduler="sync")
         except ImageWindowError:
@@ -231,7 +236,10 @@ class _NetcdfVariable:
         self.offset = float(getattr(var, "add_offset", 0.0))
 
     def read(self, l0: int, l1: int, s0: int, s1: int) -> Array:
-        raw = np.asarray(self.var[l0:l1, s0:s1])
+        from .nclock import netcdf_library
+
+        with netcdf_library():                  # netCDF-C/HDF5 are not thread-safe (lunarmap.io.nclock)
+            raw = np.asarray(self.var[l0:l1, s0:s1])
         out = raw.astype(np.float64)
         if self.fill is not None and not np.isnan(self.fill):
             out[raw == self.fill] = np.nan
@@ -240,9 +248,18 @@ class _NetcdfVariable:
         return out
 
     def close(self) -> None:
+        from .nclock import close_dataset
+
+        close_dataset(self.ds)
+
+    def __del__(self) -> None:
+        # dropped without close(): closed under the lock (or by its next holder), never by netCDF4's
+        # deallocator in whatever thread the collector runs
         try:
-            self.ds.close()
-        except RuntimeError:   # already closed
+            from .nclock import close_dataset
+
+            close_dataset(self.ds, wait=False)
+        except Exception:  # noqa: BLE001 - interpreter shutdown: modules may be gone
             pass
 
 

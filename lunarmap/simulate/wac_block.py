@@ -30,11 +30,11 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
-__all__ = ["write_wac_block", "WAC_NAME", "WAC_ID"]
+__all__ = ["write_wac_block", "measure_points", "WAC_NAME", "WAC_ID"]
 
 WAC_NAME = "SIM_WAC"
 WAC_ID = -990700
@@ -153,6 +153,47 @@ def _skew_exp(v: np.ndarray) -> np.ndarray:
     return Rotation.from_rotvec(v).as_matrix()
 
 
+def measure_points(cameras: Mapping[str, Any], X: np.ndarray, kind: str, sigma_px: float, rng: np.random.Generator,
+                   control_sigma_m: float = 0.5) -> Any:
+    """Ground points measured in the images that see them: a :class:`~lunarmap.adjust.ControlNetwork`.
+
+    Parameters
+    ----------
+    cameras : mapping of str to camera
+        The (true) cameras, by image name; their order is the network's image order.
+    X : (n, 3) ndarray
+        Body-fixed points, m.
+    kind : {"control", "check", "tie"}
+        Point type; control points get coordinates perturbed by ``control_sigma_m`` and that covariance.
+    sigma_px : float
+        Noise of each image coordinate, pixels.
+    rng : numpy.random.Generator
+    control_sigma_m : float
+        σ of each control point coordinate, m.
+    """
+    from ..adjust import ControlNetwork
+
+    names = list(cameras)
+    pid, img, ls = [], [], []
+    for i, x in enumerate(np.asarray(X, dtype=float)):
+        for j, name in enumerate(names):
+            li, sa = cameras[name].ground_to_image(x)
+            if np.isfinite(li):
+                pid.append(i)
+                img.append(j)
+                ls.append([li + rng.normal(0, sigma_px), sa + rng.normal(0, sigma_px)])
+    keep = np.unique(pid)
+    xyz = np.asarray(X, dtype=float)[keep]
+    cov = None
+    if kind == "control":
+        xyz = xyz + rng.normal(0, control_sigma_m, xyz.shape)
+        cov = np.tile(np.eye(3) * control_sigma_m ** 2, (keep.size, 1, 1))
+    return ControlNetwork(point_id=np.array([f"{kind[:2]}{i}" for i in keep]), point_type=np.array([kind] * keep.size),
+                          xyz=xyz, measure_point=np.searchsorted(keep, pid), measure_image=np.array(img),
+                          line_sample=np.array(ls), measure_sigma=np.full((len(pid), 2), sigma_px),
+                          image_id=np.array(names), xyz_cov=cov)
+
+
 def write_wac_block(folder: str | os.PathLike[str], seed: int = 0, framelets: int = 60, delay: float = 1.0,
                     n_control: int = 8, n_check: int = 32, output: str = "run") -> Path:
     """Write the WAC-like block (see the module docstring) into ``folder``; returns ``run.toml``.
@@ -172,7 +213,7 @@ def write_wac_block(folder: str | os.PathLike[str], seed: int = 0, framelets: in
     """
     import spiceypy
 
-    from ..adjust import ControlNetwork, merge_networks, write_network
+    from ..adjust import merge_networks, write_network
     from ..camera.factory import camera_from_isd
     from ..orientation.drivers import image_support
     from ..orientation.rotation import align_quaternion_signs, matrix_to_quat
@@ -277,28 +318,8 @@ def write_wac_block(folder: str | os.PathLike[str], seed: int = 0, framelets: in
     g = g[seen[:, :2].any(axis=1) & seen[:, 2:].any(axis=1)]
     g = g[rng.permutation(g.shape[0])]
 
-    def measured(X: np.ndarray, kind: str, sigma: float) -> ControlNetwork:
-        pid, img, ls = [], [], []
-        for i, x in enumerate(X):
-            for j, name in enumerate(names):
-                li, sa = truth[name].ground_to_image(x)
-                if np.isfinite(li):
-                    pid.append(i)
-                    img.append(j)
-                    ls.append([li + rng.normal(0, sigma), sa + rng.normal(0, sigma)])
-        keep = np.unique(pid)
-        xyz = X[keep]
-        cov = None
-        if kind == "control":
-            xyz = xyz + rng.normal(0, 0.5, xyz.shape)
-            cov = np.tile(np.eye(3) * 0.5 ** 2, (keep.size, 1, 1))
-        return ControlNetwork(point_id=np.array([f"{kind[:2]}{i}" for i in keep]), point_type=np.array([kind] * keep.size), xyz=xyz,
-                              measure_point=np.searchsorted(keep, pid), measure_image=np.array(img),
-                              line_sample=np.array(ls), measure_sigma=np.full((len(pid), 2), sigma),
-                              image_id=np.array(names), xyz_cov=cov)
-
-    net = merge_networks(measured(g[:n_control], "control", 0.2),
-                         measured(g[n_control:n_control + n_check], "check", 0.2))
+    net = merge_networks(measure_points(truth, g[:n_control], "control", 0.2, rng),
+                         measure_points(truth, g[n_control:n_control + n_check], "check", 0.2, rng))
     write_network(net, root / "points.nc")
     images = "\n".join(f'[[images]]\nname = "{n}"\nlabel = "mission/{n}.lbl"\npixels = "mission/{n}.nc"\n'
                        f'group = "orbit{n[5]}"\n' for n in names)

@@ -61,6 +61,8 @@ Layout (every relative path is taken relative to the configuration file's folder
                                      # the median standardised residual's ("robust": gross errors do not inflate it)
     baarda_separable = true          # a point whose failing ray no test can single out is withdrawn whole
     downweight_factor = 5.0          # failing navigation / control observations: weight divided by this
+    # max_rounds = 200               # budget: adjustments after the first one (default: no limit)
+    # max_seconds = 600.0            # budget: wall-clock seconds; a run that spends it is flagged in the report
 
     [report]
     html = true
@@ -135,6 +137,8 @@ class QCConfig:
     baarda_sigma0: str = "robust"
     downweight_factor: float = 5.0
     baarda_separable: bool = True
+    max_rounds: int | None = None
+    max_seconds: float | None = None
 
 
 @dataclass(frozen=True)
@@ -190,7 +194,7 @@ _NAV = {"position_sigma": ((int, float), True), "attitude_sigma": ((int, float),
 _QC = {"steps": (list, False), "sequent_limit_km": ((int, float), False), "robust_function": (str, False),
        "robust_scale": (str, False), "baarda_limit": ((int, float), False), "baarda_per_round": (str, False),
        "baarda_sigma0": (str, False), "baarda_separable": (bool, False),
-       "downweight_factor": ((int, float), False)}
+       "downweight_factor": ((int, float), False), "max_rounds": (int, False), "max_seconds": ((int, float), False)}
 _IMAGE = {"name": (str, True), "label": (str, True), "pixels": (str, True), "group": ((str, int), False)}
 
 
@@ -252,6 +256,10 @@ def _qc_config(q: Mapping[str, Any], navigation: bool, largest_group: int, src: 
     for key in ("sequent_limit_km", "baarda_limit"):
         if key in q and not q[key] > 0:
             raise ConfigError(f"{src}: adjust.qc.{key} must be > 0, got {q[key]!r}")
+    if "max_rounds" in q and not q["max_rounds"] >= 0:
+        raise ConfigError(f"{src}: adjust.qc.max_rounds must be >= 0, got {q['max_rounds']!r}")
+    if "max_seconds" in q and not q["max_seconds"] >= 0:
+        raise ConfigError(f"{src}: adjust.qc.max_seconds must be >= 0, got {q['max_seconds']!r}")
     if "downweight_factor" in q and not q["downweight_factor"] > 1:
         raise ConfigError(f"{src}: adjust.qc.downweight_factor must be > 1, got {q['downweight_factor']!r}")
     fn = q.get("robust_function", d.robust_function)
@@ -266,7 +274,9 @@ def _qc_config(q: Mapping[str, Any], navigation: bool, largest_group: int, src: 
     return QCConfig(steps, float(q.get("sequent_limit_km", d.sequent_limit_km)), fn,
                     q.get("robust_scale", d.robust_scale), float(q.get("baarda_limit", d.baarda_limit)), per_round,
                     q.get("baarda_sigma0", d.baarda_sigma0), float(q.get("downweight_factor", d.downweight_factor)),
-                    bool(q.get("baarda_separable", d.baarda_separable)))
+                    bool(q.get("baarda_separable", d.baarda_separable)),
+                    int(q["max_rounds"]) if "max_rounds" in q else None,
+                    float(q["max_seconds"]) if "max_seconds" in q else None)
 
 
 def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",

@@ -38,6 +38,10 @@ def qc_text(summary: dict[str, Any], sigma0: bool = True) -> str:
     before = "in the robust adjustment" if q.get("first_adjustment") == "robust" else "before"
     text = (f"quality control ({' -> '.join(q['steps'])}): {q['image_observations_removed']} of "
             f"{q['image_observations']} image observations removed ({by or 'none'}; {acted})")
+    if q.get("final_status"):
+        text += "; final status: " + ", ".join(f"{k} {v}" for k, v in q["final_status"].items())
+    if q.get("clean") is False:
+        text += "; NOT A CLEAN BLOCK: " + "; ".join(q.get("flags", []))
     return text + (f"; sigma0 {q['sigma0_first']:.3f} {before}, {q['sigma0_last']:.3f} after" if sigma0 else "")
 
 
@@ -124,6 +128,8 @@ def verdict(summary: dict[str, Any], residuals: xr.Dataset | None = None,
             out.append(("warn" if t["removed"] and prec < 0.5 else "ok", text + "."))
         else:
             out.append(("info", text + " (how many were wrong is known only where the truth is, e.g. the example)."))
+        if q.get("clean") is False:
+            out.append(("warn", "quality control ended without a clean block: " + "; ".join(q.get("flags", []))))
         lost = q.get("check_points_without_rays") or []
         if lost:
             out.append(("warn", f"{len(lost)} check point(s) lost their rays to quality control and are not scored: "

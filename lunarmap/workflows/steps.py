@@ -682,7 +682,12 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
             # the measured image coordinates (line, sample), e.g. to compare with a simulation's truth
             resid["observed"] = (("obs", "coord"), np.asarray(res.result.problem.obs.xy, float))
             if qc_out is not None:
-                resid["qc_removed"] = ("obs", ~qc_out.ledger.active)
+                st = qc_out.report.final_status()
+                img = st["kind"].values == "image"
+                status = np.full(resid.sizes["obs"], "in", dtype=object)
+                status[st["index"].values[img]] = st["status"].values[img]
+                resid["qc_status"] = ("obs", status.astype(str))
+                resid["qc_removed"] = ("obs", status != "in")
                 qc_out.report.write(folder / "qc.nc")
                 (folder / "qc.txt").write_text(qc_out.report.table() + "\n")
             resid.attrs.update(attrs)
@@ -734,14 +739,30 @@ def _quality_control(block: Any, names: Sequence[str], groups: Sequence[str], qc
         variance={"on_weak": "keep", "rounds": 20},
         # the paper's two stages (candidates from the residuals, then only the significant ones): the forward
         # selection adjusts once per candidate and round, too slow for a run's dozens of navigation groups
-        offsets={"select": "all"})
-    return quality_control(block.problem, qc["steps"], image_group, [f"image {g}" for g in uniq], options)
+        offsets={"select": "all"},
+        max_rounds=qc.get("max_rounds"), max_seconds=qc.get("max_seconds"))
+    import warnings
+
+    from ..errors import QualityControlWarning
+
+    # a run that ends without a clean block is flagged in its summary and report (the flags are in the QC
+    # report); the warning is logged, not raised into the run
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", QualityControlWarning)
+        out = quality_control(block.problem, qc["steps"], image_group, [f"image {g}" for g in uniq], options)
+    for w in caught:
+        if issubclass(w.category, QualityControlWarning):
+            _log.warning("adjust: %s", w.message)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return out
 
 
 def _qc_summary(qc_out: Any, block: Any, names: Sequence[str]) -> dict[str, Any]:
     """The run summary's quality-control figures: counts per step and action, removed per point type."""
     rep = qc_out.report
-    removed = ~qc_out.ledger.active
+    removed = np.zeros(block.problem.obs.n, bool)
+    removed[qc_out.removed_image_observations] = True
     ptype = block.network.point_type[block.problem.obs.pt_idx]
     out: dict[str, Any] = {
         "steps": list(rep.summary.get("steps", [])),
@@ -753,6 +774,10 @@ def _qc_summary(qc_out: Any, block: Any, names: Sequence[str]) -> dict[str, Any]
         "image_observations_removed": int(removed.sum()),
         "removed_by_point_type": {t: int(np.sum(removed & (ptype == t))) for t in np.unique(ptype)},
         "removed_by_image": {n: int(np.sum(removed & (block.problem.obs.cam_idx == i))) for i, n in enumerate(names)},
+        # every observation's final status, counted (the table itself is in qc.nc, status_*)
+        "final_status": {f"{k} {st}": int(n) for (k, st), n in sorted(rep.status_counts().items())},
+        "clean": bool(rep.clean),
+        "flags": [str(f) for f in rep.summary.get("flags", [])],
     }
     for k in ("baarda_rounds", "max_w", "untestable", "sequent_points_removed"):
         if k in rep.summary:

@@ -14,6 +14,9 @@
   (:func:`~lunarmap.adjust.variance.estimate_variance_components`);
 * ``"offsets"`` -- two-stage detection of per-orbit navigation offsets and drifts (:mod:`.offsets`).
 
+Every run ends with a final status per observation (:mod:`.status`) and a verdict on whether the block
+it leaves is clean (:mod:`.ending`: a :class:`~lunarmap.errors.QualityControlWarning` and report flags if not).
+
 Indices never change (:mod:`.ledger`): removed observations get weight 0, points without rays are
 held fixed, so the :class:`QCReport` refers to the user's own observations, points and images.
 """
@@ -30,21 +33,29 @@ import numpy as np
 import xarray as xr
 from numpy.typing import NDArray
 
-from ...errors import QualityControlInputError
+from ...errors import (
+    AdjustmentError,
+    QualityControlInputError,
+    QualityControlWarning,
+    VarianceComponentError,
+    warn,
+)
 from ..problem import BundleProblem
 from ..result import AdjustmentResult
 from ..solver import SolverOptions
 from ..variance import ObservationGroups, VarianceComponents, estimate_variance_components, observation_groups
+from .ending import SIGMA0_ALPHA, Budget, assess
 from .ledger import Decision, Ledger, _last_result
 from .offsets import offset_drift_step
 from .report import QCReport
 from .robust import WEIGHT_FUNCTIONS, robust_step, weight_function
 from .sequent import SequentResult, sequent_screening
 from .snooping import snooping_step, w_tests
+from .status import STATUSES, final_status
 
 __all__ = ["quality_control", "QCOptions", "QCResult", "QCReport", "Decision", "Ledger", "STEPS",
            "sequent_screening", "SequentResult", "robust_step", "snooping_step", "w_tests", "offset_drift_step",
-           "WEIGHT_FUNCTIONS", "weight_function", "block_result"]
+           "WEIGHT_FUNCTIONS", "weight_function", "block_result", "Budget", "final_status", "STATUSES"]
 
 _log = logging.getLogger(__name__)
 
@@ -69,6 +80,12 @@ class QCOptions:
     robust_start : bool
         Without the Sequent step, start every point at the intersection of its best pair of rays
         (nothing is removed; a gross error then cannot drag the start).
+    max_rounds : int, optional
+        Budget of the run: adjustments after the first one (:class:`~.ending.Budget`; default no limit).
+    max_seconds : float, optional
+        Budget of the run: wall-clock seconds, checked between rounds (default no limit).
+    sigma0_alpha : float
+        Two-sided significance of the chi-square test of the final sigma0 (:func:`~.ending.assess`).
     """
 
     sequent_limit_km: float = 10.0
@@ -79,6 +96,9 @@ class QCOptions:
     offsets: dict = field(default_factory=dict)
     solver: SolverOptions | None = None
     robust_start: bool = True
+    max_rounds: int | None = None
+    max_seconds: float | None = None
+    sigma0_alpha: float = SIGMA0_ALPHA
 
 
 @dataclass
@@ -110,8 +130,13 @@ class QCResult:
 
     @property
     def removed_image_observations(self) -> NDArray[np.int64]:
-        """Image observations that are not in the final adjustment (removed or with a dropped point)."""
-        return np.flatnonzero(~self.ledger.active)
+        """Image observations that are not in the final adjustment (removed, withdrawn or set aside: every
+        image row of :meth:`QCReport.final_status` whose status is not ``"in"``)."""
+        st = self.report.status
+        if st is None:
+            return np.flatnonzero(~self.ledger.active)
+        img = st["kind"].values == "image"
+        return st["index"].values[img & (st["status"].values != "in")].astype(np.int64)
 
 
 def _best_pair_start(problem: BundleProblem, units_per_km: float) -> BundleProblem:
@@ -178,21 +203,39 @@ def quality_control(problem: BundleProblem, steps: Sequence[str] = ("sequent", "
     image_group_names : list of str, optional
     options : QCOptions, optional
 
+    The run's cost is bounded by ``QCOptions.max_rounds`` / ``max_seconds`` (:class:`~.ending.Budget`); a step
+    the budget does not reach is skipped. A step that fails on the data (an adjustment error inside it) ends
+    the run on what it has: its error is a flag and a ``"failed"`` decision, not an exception. The report's
+    :meth:`~.report.QCReport.final_status` gives every observation's final status.
+
     Raises
     ------
     QualityControlInputError
-        An unknown or repeated step, or a bad setting of a step.
+        An unknown or repeated step, a bad setting of a step, a bad budget.
     VarianceComponentError
         A group whose variance component cannot be estimated (unless ``variance={"on_weak": "keep"}``).
+    AdjustmentError
+        The first adjustment fails (there is no result to report).
+
+    Warns
+    -----
+    QualityControlWarning
+        The run ended without a clean block (:func:`~.ending.assess`: budget spent, a step failed, sigma0
+        outside its chi-square bounds, large w-tests or untestable residuals left, no redundancy); the flags
+        are in ``report.summary["flags"]`` and ``report.clean`` is False.
     """
     opt = options or QCOptions()
     steps = list(steps)
     bad = [s for s in steps if s not in STEPS]
     if bad or len(set(steps)) != len(steps):
         raise QualityControlInputError(f"quality-control steps must be distinct names of {STEPS}, got {steps}")
+    if not (0.0 < opt.sigma0_alpha < 1.0):
+        raise QualityControlInputError(f"sigma0_alpha must be in (0, 1), got {opt.sigma0_alpha!r}")
+    budget = Budget(opt.max_rounds, opt.max_seconds)
     groups0 = observation_groups(problem, image_group, image_group_names)
     obs_names = np.array(groups0.names, dtype=object)[groups0.image]
     ledger = Ledger(problem, obs_names)
+    ledger.budget = budget
     if "sequent" not in steps and opt.robust_start:
         problem = _best_pair_start(problem, opt.units_per_km)
         ledger.base = problem
@@ -212,48 +255,37 @@ def quality_control(problem: BundleProblem, steps: Sequence[str] = ("sequent", "
         sigma0_first = first.sigma0
         summary["first_adjustment"] = "least squares"
         _log.info("quality control: first adjustment, sigma0 %.3f; steps %s", first.sigma0, " -> ".join(steps))
-    for step in steps:
+    for k_step, step in enumerate(steps):
+        why = budget.exhausted()
+        if why:
+            summary["budget_spent"] = why
+            summary["steps_unfinished"] = steps[k_step:]
+            break
         ledger.step = step
         t_step, n_dec = time.perf_counter(), len(ledger.decisions)
-        if step == "sequent":
-            # the first adjustment may have set aside points that gross errors dragged onto a projection
-            # centre, with all their good rays; Sequent tests the rays themselves, so it gets them back
-            ledger.reinstate_set_aside("sequent")
-            seq = sequent_screening(ledger.problem(first if first is not None else ledger.result),
-                                    opt.sequent_limit_km, opt.units_per_km, active=ledger.active,
-                                    cam_params=problem.cam_params)
-            st = seq.points["status"].values
-            rejected = np.flatnonzero(ledger.active & ~seq.keep)
-            sig = seq.points["sigma"].values
-            ledger.remove_image(rejected, "sequent", 0, value=sig[problem.obs.pt_idx[rejected]])
-            summary["sequent_points_removed"] = int(np.sum(st == 2))
-            ledger.result = None   # start the next adjustment from the problem's own values
-        elif step == "robust":
-            out = robust_step(ledger, options=opt.solver, **opt.robust)
-            if robust_first:
-                sigma0_first = out["sigma0"]
-        elif step == "baarda":
-            kw = dict(opt.baarda)
-            # after a robust adjustment its solution is the better start; before one, the a-priori values
-            # (the navigation) are, and the first rounds are linearised there
-            kw.setdefault("linearised", "robust" not in steps[:steps.index("baarda")])
-            out = snooping_step(ledger, options=opt.solver, **kw)
-            summary["baarda_linear_rounds"] = out["linear_rounds"]
-            summary["baarda_rounds"] = out["rounds"]
-            summary["max_w"] = out["max_w"]
-            summary["untestable"] = out["untestable"]
-        elif step == "variance":
-            groups = _groups(ledger, image_group, image_group_names)
-            kw = dict(opt.variance)
-            vc = estimate_variance_components(ledger.base, groups, opt.solver, weights=ledger.weights,
-                                              start=ledger.result, terms=ledger.terms, **kw)
-            ledger.weights = vc.weights
-            ledger.result = vc.result
-            for name, f, e in zip(vc.names, vc.scale, vc.estimated):
-                ledger.decisions.append(Decision("variance", len(vc.history), "group", 0, value=float(f),
-                                                 action="sigma scaled" if e else "kept", group=name))
-        elif step == "offsets":
-            off = offset_drift_step(ledger, options=opt.solver, **opt.offsets)
+        try:
+            first, sigma0_first, seq, vc, off = _run_step(step, steps, ledger, problem, opt, summary, first,
+                                                          sigma0_first, robust_first, image_group,
+                                                          image_group_names, seq, vc, off)
+        except (QualityControlInputError, VarianceComponentError):
+            raise
+        except AdjustmentError as exc:
+            # the data broke a step (a geometry no start value fits, a precision that cannot be computed):
+            # the run ends on what it has, flagged, instead of dying on the data it was meant to clean
+            _log.warning("quality control: step %s failed on the data: %s", step, exc)
+            summary.setdefault("step_errors", []).append(f"{step}: {type(exc).__name__}: {exc}")
+            summary["steps_unfinished"] = steps[k_step:]
+            ledger.decisions.append(Decision(step, 0, "step", k_step, action="failed", group=str(exc)[:200]))
+            try:
+                ledger.adjust(opt.solver)           # the result of what the steps decided so far
+            except AdjustmentError as exc2:
+                summary["step_errors"].append(f"final adjustment: {type(exc2).__name__}: {exc2}")
+                if ledger.result is None:
+                    raise
+            break
+        if summary.get("budget_spent"):
+            summary["steps_unfinished"] = steps[k_step:]
+            break
         acted = [d for d in ledger.decisions[n_dec:]
                  if d.action in ("removed", "downweighted", "flagged", "withdrawn")]
         _log.info("quality control: %s done in %.1f s: %d observations removed / down-weighted / flagged, "
@@ -264,6 +296,13 @@ def quality_control(problem: BundleProblem, steps: Sequence[str] = ("sequent", "
     res = _last_result(ledger)
     summary["sigma0_first"] = float(sigma0_first)
     summary["sigma0_last"] = float(res.sigma0)
+    summary["rounds"] = budget.rounds
+    summary["seconds"] = float(time.perf_counter() - budget.start)
+    flags = assess(res, summary, float(opt.baarda.get("limit", 4.0)), opt.sigma0_alpha, ledger.active)
+    summary["clean"] = not flags
+    summary["flags"] = flags
+    if flags:
+        warn("quality control ended without a clean block: " + "; ".join(flags), QualityControlWarning)
     groups_ds = None
     if vc is not None:
         groups_ds = xr.Dataset({"sigma_factor": ("group", vc.scale), "sigma_factor_sigma": ("group", vc.scale_sigma),
@@ -274,8 +313,60 @@ def quality_control(problem: BundleProblem, steps: Sequence[str] = ("sequent", "
             groups_ds["sigma_factor_sigma_joint"] = ("group", vc.scale_sigma_joint)
             groups_ds["correlation"] = (("group", "group_other"), vc.correlation)
             groups_ds = groups_ds.assign_coords(group_other=np.array(vc.names, dtype=object))
-    report = QCReport(list(ledger.decisions), groups_ds, [] if off is None else off["rounds"], summary)
+    report = QCReport(list(ledger.decisions), groups_ds, [] if off is None else off["rounds"], summary,
+                      final_status(ledger))
     return QCResult(res, res.problem, report, ledger, seq, vc, off)
+
+
+def _run_step(step: str, steps: list, ledger: Ledger, problem: BundleProblem, opt: QCOptions, summary: dict,
+              first, sigma0_first: float, robust_first: bool, image_group, image_group_names, seq, vc, off):
+    """One step of :func:`quality_control` (its loop body); returns the state the loop carries."""
+    if step == "sequent":
+        # the first adjustment may have set aside points that gross errors dragged onto a projection
+        # centre, with all their good rays; Sequent tests the rays themselves, so it gets them back
+        ledger.reinstate_set_aside("sequent")
+        seq = sequent_screening(ledger.problem(first if first is not None else ledger.result),
+                                opt.sequent_limit_km, opt.units_per_km, active=ledger.active,
+                                cam_params=problem.cam_params)
+        st = seq.points["status"].values
+        rejected = np.flatnonzero(ledger.active & ~seq.keep)
+        sig = seq.points["sigma"].values
+        ledger.remove_image(rejected, "sequent", 0, value=sig[problem.obs.pt_idx[rejected]])
+        summary["sequent_points_removed"] = int(np.sum(st == 2))
+        ledger.result = None   # start the next adjustment from the problem's own values
+    elif step == "robust":
+        out = robust_step(ledger, options=opt.solver, **opt.robust)
+        if robust_first:
+            sigma0_first = out["sigma0"]
+    elif step == "baarda":
+        kw = dict(opt.baarda)
+        # after a robust adjustment its solution is the better start; before one, the a-priori values
+        # (the navigation) are, and the first rounds are linearised there
+        kw.setdefault("linearised", "robust" not in steps[:steps.index("baarda")])
+        out = snooping_step(ledger, options=opt.solver, **kw)
+        summary["baarda_linear_rounds"] = out["linear_rounds"]
+        summary["baarda_rounds"] = out["rounds"]
+        summary["max_w"] = out["max_w"]
+        summary["untestable"] = out["untestable"]
+        summary["untestable_large"] = out["untestable_large"]
+        if out["round_limit"]:
+            summary["baarda_round_limit"] = True
+        if out["budget_spent"]:
+            summary["budget_spent"] = out["budget_spent"]
+    elif step == "variance":
+        groups = _groups(ledger, image_group, image_group_names)
+        kw = dict(opt.variance)
+        vc = estimate_variance_components(ledger.base, groups, opt.solver, weights=ledger.weights,
+                                          start=ledger.result, terms=ledger.terms, **kw)
+        ledger.weights = vc.weights
+        ledger.result = vc.result
+        ledger.budget.rounds += len(vc.history)     # its adjustments, made outside the ledger, count too
+        for name, f, e in zip(vc.names, vc.scale, vc.estimated):
+            ledger.decisions.append(Decision("variance", len(vc.history), "group", 0, value=float(f),
+                                             action="sigma scaled" if e else "kept", group=name))
+    elif step == "offsets":
+        off = offset_drift_step(ledger, options=opt.solver, **opt.offsets)
+    return first, sigma0_first, seq, vc, off
 
 
 def block_result(qc: QCResult, block):
@@ -283,5 +374,6 @@ def block_result(qc: QCResult, block):
     (adjusted sensors, points, check points), the block's problem replaced by the final one."""
     from ..block import Block, BlockResult
 
-    return BlockResult(Block(block.names, block.model, block.network, qc.problem, block.navigation, block.terrain),
+    return BlockResult(Block(block.names, block.model, block.network, qc.problem, block.navigation, block.terrain,
+                             block.starts),
                        qc.result)

@@ -19,12 +19,13 @@ from typing import cast
 import numpy as np
 from numpy.typing import NDArray
 
-from ...errors import AdjustmentInputError
+from ...errors import AdjustmentInputError, QualityControlError
 from ..intersection import intersect_points
 from ..problem import BundleProblem
 from ..result import AdjustmentResult
 from ..solver import SolverOptions, solve
 from ..weights import Weights, reweighted_problem
+from .ending import Budget
 
 __all__ = ["Decision", "Ledger", "DEGENERATE_NORMAL"]
 
@@ -124,6 +125,8 @@ class Ledger:
         self._adjusted = False
         self._linear_points: NDArray | None = None
         self.step = "adjust"      # the step running, for decisions taken inside adjust()
+        #: the run's budget (:class:`~.ending.Budget`); every adjustment after the first counts one round
+        self.budget = Budget()
 
     # -- state -----------------------------------------------------------------------------------
     @property
@@ -176,6 +179,7 @@ class Ledger:
         opts = options or SolverOptions()
         if self._adjusted:
             opts = dataclasses.replace(opts, check_datum=False)
+            self.budget.rounds += 1
         self.result = solve(self._finite(self.problem(start)), opts, reweight=reweight)
         self._adjusted = True
         for _ in range(3):
@@ -212,6 +216,7 @@ class Ledger:
                                    initial_mu=min((options or SolverOptions()).initial_mu, 1e-12))
         if self._adjusted:
             opts = dataclasses.replace(opts, check_datum=False)
+            self.budget.rounds += 1
         o = self.base.obs
         touched = set(self._touched)
         if self._linear_points is None:
@@ -301,13 +306,17 @@ class Ledger:
             if sees(X_int):
                 pts[j] = X_int
                 continue
-            for X in (self.base.points[j], ctl_value.get(int(j)), median):
+            for X in (self.base.points[j], ctl_value.get(int(j)), self._model_guess(pb, track), median):
                 if sees(X):
                     pts[j] = X
                     break
             else:
-                raise AdjustmentInputError(f"point {int(j)} is behind a camera from every start value tried "
-                                           "(its intersection, its start, the median point)")
+                # any other point all of this point's images see (its neighbours in those images first)
+                X = self._seen_by_all(pb, track, pts, good)
+                if X is None:
+                    raise QualityControlError(f"point {int(j)} is behind a camera from every start value tried (its "
+                                              "intersection, its start, its rays' own guess, every other point)")
+                pts[j] = X
             if not self.weights.dropped_points[j] and not self._control_pts[j]:
                 drop.append(int(j))
         for jd in drop:
@@ -315,6 +324,35 @@ class Ledger:
             self.decisions.append(Decision(self.step, 0, "point", jd, -1, jd, -1, np.nan, np.nan, "dropped",
                                            ASIDE_BEHIND))
         return reweighted_problem(self.base, self.weights, pb.cam_params, pts, self.terms)
+
+    def _model_guess(self, pb: BundleProblem, track: NDArray[np.int64]) -> NDArray | None:
+        """The model's own guess of a point from its rays ``track`` at the problem's images (their nearest point,
+        or a single ray on the reference surface); None where it has none."""
+        o = self.base.obs
+        if track.size == 0:
+            return None
+        try:
+            with np.errstate(all="ignore"):
+                X = self.base.model.initial_points(pb.cam_params, o.cam_idx[track], np.zeros(track.size, np.int64),
+                                                   o.xy[track], 1)[0]
+        except (ValueError, np.linalg.LinAlgError, AdjustmentInputError):
+            return None
+        return X if np.all(np.isfinite(X)) else None
+
+    def _seen_by_all(self, pb: BundleProblem, track: NDArray[np.int64], pts: NDArray,
+                     good: NDArray[np.bool_]) -> NDArray | None:
+        """A point position (another point's) that every image of ``track`` projects finitely, preferring points
+        observed in the most of those images; None if there is none."""
+        o = self.base.obs
+        imgs = np.unique(o.cam_idx[track])
+        seen = np.bincount(o.pt_idx[np.isin(o.cam_idx, imgs)], minlength=self.base.n_points)
+        cand = np.flatnonzero(good & np.all(np.isfinite(pts), axis=1))
+        for j in cand[np.argsort(-seen[cand], kind="stable")][:200]:
+            with np.errstate(all="ignore"):
+                x = pb.model.project(pb.cam_params, imgs, np.broadcast_to(pts[j], (imgs.size, 3)))
+            if np.all(np.isfinite(x)):
+                return pts[j].copy()
+        return None
 
     def _degenerate(self, res: AdjustmentResult) -> NDArray[np.int64]:
         """Free tie points whose normal block is ``DEGENERATE_NORMAL`` times the median point's: partials blown

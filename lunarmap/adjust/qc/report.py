@@ -35,16 +35,50 @@ class QCReport:
         groups' ``correlation`` (near -1: groups the data cannot separate); absent if not estimated.
     offsets : list of xarray.Dataset
         The offset/drift detection rounds (``"times 1"``, ``"times 2"``, ``"results"``).
+    status : xarray.Dataset or None
+        The final status of every observation (:func:`~lunarmap.adjust.qc.status.final_status`):
+        read it with :meth:`final_status`.
     summary : dict
         ``steps``, ``first_adjustment`` (``"least squares"``, or ``"robust"`` when the robust step
         comes first), ``sigma0_first`` / ``sigma0_last`` (a-posteriori sigma0 of the first and last
-        adjustments), ``untestable`` observations of the last data-snooping round, ``max_w``.
+        adjustments), ``untestable`` observations of the last data-snooping round, ``max_w``; ``clean``
+        (False when the run ended without a clean block) and ``flags`` (why: :mod:`.ending`).
     """
 
     decisions: list = field(default_factory=list)
     groups: xr.Dataset | None = None
     offsets: list = field(default_factory=list)
     summary: dict = field(default_factory=dict)
+    status: xr.Dataset | None = None
+
+    def final_status(self) -> xr.Dataset:
+        """The final status of every observation: ``in``, ``removed``, ``down-weighted``, ``withdrawn`` or
+        ``set-aside``, with the deciding step, round, test value and reason (see
+        :func:`~lunarmap.adjust.qc.status.final_status` for the fields).
+
+        Raises
+        ------
+        QualityControlInputError
+            A report built without the table (by hand, not by :func:`~lunarmap.adjust.qc.quality_control`).
+        """
+        if self.status is None:
+            raise QualityControlInputError("this QC report has no final status table (it was not made by "
+                                           "quality_control)")
+        return self.status
+
+    @property
+    def clean(self) -> bool:
+        """False when quality control ended without a clean block (``summary["flags"]`` say why)."""
+        return bool(self.summary.get("clean", True))
+
+    def status_counts(self) -> dict:
+        """Observations per (kind, final status), e.g. ``{("image", "removed"): 23, ...}``."""
+        if self.status is None:
+            return {}
+        out: dict[tuple[str, str], int] = {}
+        for k, st in zip(self.status["kind"].values, self.status["status"].values):
+            out[(str(k), str(st))] = out.get((str(k), str(st)), 0) + 1
+        return out
 
     def counts(self) -> dict:
         """Observations acted on per (step, kind, action)."""
@@ -55,7 +89,8 @@ class QCReport:
         return out
 
     def to_dataset(self) -> xr.Dataset:
-        """Everything as one xarray Dataset: dimensions ``decision`` (the decisions' fields), ``obs_group``
+        """Everything as one xarray Dataset: dimensions ``decision`` (the decisions' fields), ``status_row``
+        (``status_*``: :meth:`final_status`), ``obs_group``
         (``group_*`` variables; ``acted_on (obs_group, qc_step)`` counts observations removed, down-weighted,
         flagged or withdrawn per group and step) and ``offset_row`` (``offset_*``, every round)."""
         text = {"step", "kind", "action", "group"}
@@ -84,8 +119,13 @@ class QCReport:
             off = xr.concat(rows, dim="row").rename({"row": "offset_row"})
             off = off.rename({k: f"offset_{k}" for k in off.data_vars})
             ds = ds.merge(off)
+        if self.status is not None:
+            st = self.status.rename({k: f"status_{k}" for k in self.status.data_vars})
+            ds = ds.merge(st.rename({"observation": "status_row"}))
         for k, v in self.summary.items():
-            ds.attrs[k] = v if not isinstance(v, (list, tuple)) else ", ".join(map(str, v))
+            if isinstance(v, bool):
+                v = int(v)          # netCDF has no boolean attribute
+            ds.attrs[k] = v if not isinstance(v, (list, tuple)) else ("; " if k == "flags" else ", ").join(map(str, v))
         return ds
 
     def write(self, path: str | os.PathLike) -> Path:
@@ -113,6 +153,11 @@ class QCReport:
         first = f" ({s['first_adjustment']})" if s.get("first_adjustment") else ""
         lines.append(f"quality control: steps {' -> '.join(s.get('steps', []))}; sigma0 first{first} "
                      f"{s.get('sigma0_first', float('nan')):.3f}, last {s.get('sigma0_last', float('nan')):.3f}")
+        if not self.clean:
+            lines.append("NOT A CLEAN BLOCK: " + "; ".join(map(str, s.get("flags", []))))
+        sc = self.status_counts()
+        if sc:
+            lines.append("final status: " + ", ".join(f"{kind} {st} {n}" for (kind, st), n in sorted(sc.items())))
         c = self.counts()
         if c:
             lines.append(f"{'step':<9} {'kind':<11} {'action':<13} {'count':>5}")

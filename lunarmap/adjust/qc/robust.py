@@ -180,7 +180,7 @@ def robust_step(ledger: Ledger, function: str = "danish", c: float | None = None
             change = float(np.max(np.abs(w - robust)))
             robust = w
             ledger.weights.image_weight = base_w * robust
-            if change < 1e-3:
+            if change < 1e-3 or ledger.budget.exhausted():
                 break
             result = ledger.adjust(options)
     u = _normalised(ledger, _last_result(ledger).state, scale, red, active)

@@ -100,7 +100,7 @@ def _precision(res):
                               f"failed even with degenerate points set aside ({last})") from last
 
 
-def w_tests(ledger: Ledger, sigma0: str = "apriori", min_redundancy: float = 0.02) -> dict:
+def w_tests(ledger: Ledger, sigma0: str = "apriori", min_redundancy: float = 0.02, limit: float = 4.0) -> dict:
     """w-tests of every observation of the ledger's last adjustment.
 
     Returns
@@ -109,7 +109,8 @@ def w_tests(ledger: Ledger, sigma0: str = "apriori", min_redundancy: float = 0.0
         ``image`` (n_obs, 2), ``image_r`` (n_obs, 2); ``control`` (k, 3), ``control_r`` (k, 3) in the
         order of the base priors (NaN for fixed ones); ``terms`` list of (m_t,), ``terms_r``; NaN
         where not tested (removed, fixed, redundancy below ``min_redundancy``, pseudo-observations);
-        ``untestable`` the number of observations below ``min_redundancy``; ``sigma0``.
+        ``untestable`` the number of observations below ``min_redundancy``; ``untestable_large`` the image
+        observations among them with a whitened residual above ``limit`` times sigma0 (an error no test can see); ``sigma0``.
     """
     res = _result(ledger)
     pb = res.problem
@@ -120,6 +121,9 @@ def w_tests(ledger: Ledger, sigma0: str = "apriori", min_redundancy: float = 0.0
     act = (res.state.obs_weight > 0)[:, None] & np.ones((1, 2), bool)
     ok = act & (r >= min_redundancy)
     untestable = int(np.sum(act & ~ok))
+    # an error where the tests cannot see it: an untestable observation whose whitened residual is large anyway
+    with np.errstate(invalid="ignore"):
+        untestable_large = int(np.sum(np.any(act & ~ok & (np.abs(z) > limit * s0), axis=1)))
     with np.errstate(invalid="ignore", divide="ignore"):
         w_img = np.where(ok, z / (s0 * np.sqrt(np.where(ok, r, 1.0))), np.nan)
     if sigma0 == "robust" and ok.any():
@@ -155,6 +159,7 @@ def w_tests(ledger: Ledger, sigma0: str = "apriori", min_redundancy: float = 0.0
         rt.append(rr)
     out["terms"], out["terms_r"] = wt, rt
     out["untestable"] = untestable
+    out["untestable_large"] = untestable_large
     out["sigma0"] = res.sigma0
     out["sigma0_used"] = s0
     return out
@@ -568,6 +573,16 @@ def _unattributed_points(ledger: Ledger, limit: float, judged: set, rnd: int, ma
     return acted
 
 
+def _finished(ledger: Ledger, limit: float, reinstate: bool, reinstated: set, restored: set, stripped: bool) -> bool:
+    """No test fails: is there nothing left to give back, so the snooping would end now? (Stripped images and
+    points and the separability checks are not tried: their verdict needs adjustments.)"""
+    if stripped and ledger.decisions and any(d.step == "baarda" and d.action == "removed" for d in ledger.decisions):
+        return False
+    if reinstate and (_reinstatable(ledger, limit, reinstated).size or _restorable(ledger, limit, restored, every=True)):
+        return False
+    return True
+
+
 def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_rounds: int = 500,
                   per_round: str = "one", sigma0: str = "apriori", min_redundancy: float = 0.02,
                   max_downweights: int = 3, reinstate: bool = True, stripped: bool = True,
@@ -579,8 +594,10 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
     Returns
     -------
     dict
-        ``rounds`` (adjustments), ``max_w`` of the last round, ``untestable`` observations,
-        ``tests`` (the last :func:`w_tests`).
+        ``rounds`` (adjustments), ``max_w`` of the last round, ``untestable`` observations and
+        ``untestable_large`` (those with large residuals), ``tests`` (the last :func:`w_tests`),
+        ``budget_spent`` (why the run's budget stopped the rounds, ``""`` if it did not), ``round_limit``
+        (``max_rounds`` reached with tests still failing).
 
     Raises
     ------
@@ -606,6 +623,7 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
     hits_ctl: dict[int, int] = {}
     tests = {}
     rnd = 0
+    budget_spent, round_limit = "", False
     linear, n_linear = linearised, 0
     until = limit if linear_until is None else max(float(linear_until), limit)
     if linear:
@@ -619,7 +637,7 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
             linear = False
             ledger.adjust(options)
         try:
-            tests = w_tests(ledger, sigma0, min_redundancy)
+            tests = w_tests(ledger, sigma0, min_redundancy, limit)
         except QualityControlError:
             if linear:
                 linear = False      # test the non-linear adjustment instead
@@ -661,6 +679,12 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
                 cands.append((aw[row], "term", t, row))
         if linear and cands and max(c[0] for c in cands) <= until:
             cands = []          # no gross error left: the rest is for the non-linear rounds
+        if ledger.budget.exhausted() and (cands or linear or not _finished(ledger, limit, reinstate, reinstated,
+                                                                          restored, stripped)):
+            # something is left to do, and no round to do it in: the tests are of the last adjustment, the
+            # state the run ends in
+            budget_spent = ledger.budget.exhausted()
+            break
         if not cands:
             if linear:
                 # no test fails in the linear model: the rounds go on non-linear, from its solution, where
@@ -718,9 +742,11 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
                 if n > max_downweights:
                     ledger.decisions[-1].action = "flagged"
     else:
+        round_limit = True
         ledger.adjust(options)
-        tests = w_tests(ledger, sigma0, min_redundancy)
+        tests = w_tests(ledger, sigma0, min_redundancy, limit)
     allw = np.concatenate([np.abs(tests["image"]).ravel(), np.abs(tests["control"]).ravel()] +
                           [np.abs(w) for w in tests["terms"]])
     return {"rounds": rnd, "linear_rounds": n_linear, "max_w": float(np.nanmax(allw)) if np.any(np.isfinite(allw)) else np.nan,
-            "untestable": tests.get("untestable", 0), "tests": tests}
+            "untestable": tests.get("untestable", 0), "untestable_large": tests.get("untestable_large", 0),
+            "tests": tests, "budget_spent": budget_spent, "round_limit": round_limit}
