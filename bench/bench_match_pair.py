@@ -166,8 +166,8 @@ STAGES = {  # a function's file and name -> stage (cumulative time of the outerm
     "detection": [("interest.py", "foerstner")],
     "prediction (camera models)": [("predict.py", "predict_conjugates"), ("thinning.py", "thin_points")],
     "NCC search": [("ncc.py", "ncc_match")],
-    "  NCC resampling (bilinear)": [("resample.py", "bilinear")],
-    "  NCC surface": [("ncc.py", "_ncc_surface")],
+    "bilinear resampling (NCC, LSM template)": [("resample.py", "bilinear"), ("ncc_compiled.py", "affine_windows")],
+    "  NCC surface": [("ncc.py", "_ncc_surface"), ("ncc_compiled.py", "ncc_surface")],
     "LSM": [("lsm.py", "lsm_match")],
     "  LSM resampling (bicubic)": [("resample.py", "bicubic_with_gradient")],
     "  LSM covariance": [("lsm.py", "_covariance")],
@@ -206,8 +206,8 @@ def profile(case: str, folder: Path, size: int) -> None:
             if any(k[0].endswith(f) and k[2] == fn for f, fn in keys):
                 cum += v[3]
         print(f"  {stage:40s} {cum:8.3f} s  {100 * cum / total:5.1f} %")
-    st.sort_stats("cumulative").print_stats(25)
-    st.sort_stats("tottime").print_stats(20)
+    st.sort_stats("cumulative").print_stats(30)
+    st.sort_stats("tottime").print_stats(30)
 
 
 # -- compare two versions ----------------------------------------------------------------------
