@@ -243,16 +243,13 @@ def bicubic_with_gradient(image: NDArray, line: ArrayLike, sample: ArrayLike) ->
         return _by_region(bicubic_with_gradient, image, line, sample, 1, 2, 3)
     flat, base, fy, fx, inside, w, shape = _cubic_setup(image, line, sample)
     if _cubic_grad_kernel is not None:
-        val, d_line, d_sample = (np.empty(base.shape) for _ in range(3))
-        _cubic_grad_kernel(flat, base.ravel(), fy.ravel(), fx.ravel(), w, val.reshape(-1), d_line.reshape(-1),
-                           d_sample.reshape(-1))
-        bad = ~inside
-        val[bad] = np.nan
-        d_line[bad] = np.nan
-        d_sample[bad] = np.nan
+        out = [np.empty(base.shape) for _ in range(3)]
+        _cubic_grad_kernel(flat, base.ravel(), fy.ravel(), fx.ravel(), w, *(o.reshape(-1) for o in out))
+        for o in out:
+            o[~inside] = np.nan
         if shape is not None:
-            return val.reshape(shape), d_line.reshape(shape), d_sample.reshape(shape)
-        return val, d_line, d_sample
+            return out[0].reshape(shape), out[1].reshape(shape), out[2].reshape(shape)
+        return out[0], out[1], out[2]
     wx, dwx = _keys(fx), _dkeys(fx)
     wy, dwy = _keys(fy), _dkeys(fy)
     val = d_line = d_sample = None
