@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InvalidInputError
+from . import ncc_compiled
 from .resample import bilinear
 
 try:  # optional: the shift loop of the correlation in one compiled pass
@@ -145,7 +146,7 @@ def _peak(rho: Array) -> tuple[Array, Array, Array]:
 
 def ncc_match(pyr1: list[Array], pyr2: list[Array], line1: Array, sample1: Array, line2: Array,
               sample2: Array, affine: Array, half: int = 7, search: float = 16.0, refine: int = 2,
-              top_radius: int = 4, coarse_min: float = 0.6) -> NccResult:
+              top_radius: int = 4, coarse_min: float = 0.6, compiled: bool | None = None) -> NccResult:
     """Match points of image 1 into image 2 by pyramid NCC around predicted positions.
 
     Parameters
@@ -170,6 +171,10 @@ def ncc_match(pyr1: list[Array], pyr2: list[Array], line1: Array, sample1: Array
     coarse_min : float
         On levels above 0 a peak below this correlation is not trusted: the
         point keeps its estimate and searches a wider area on the next level.
+    compiled : bool, optional
+        Search windows and correlation surfaces by the compiled kernels of
+        :mod:`~lunarmap.matching.ncc_compiled` (the same values to rounding); default: when numba is
+        installed. ``False`` runs the vectorised numpy path.
 
     Returns
     -------
@@ -177,6 +182,8 @@ def ncc_match(pyr1: list[Array], pyr2: list[Array], line1: Array, sample1: Array
     """
     if half < 1 or search < 0 or refine < 1:
         raise InvalidInputError("half >= 1, search >= 0 and refine >= 1 are required")
+    if compiled is None:
+        compiled = ncc_compiled.AVAILABLE
     n = line1.size
     top = 0
     while search / 2 ** top > top_radius and top + 1 < min(len(pyr1), len(pyr2)):
@@ -202,11 +209,17 @@ def ncc_match(pyr1: list[Array], pyr2: list[Array], line1: Array, sample1: Array
                 act = sel[b0:b0 + batch]
                 a = affine[act]
                 t = bilinear(pyr1[level], line1[act, None, None] / f + tl, sample1[act, None, None] / f + ts)
-                # image-2 positions of the search window, laid out in image-1 geometry
-                gl = cl[act, None, None] / f + a[:, 0, 0, None, None] * ol + a[:, 0, 1, None, None] * os_
-                gs = cs[act, None, None] / f + a[:, 1, 0, None, None] * ol + a[:, 1, 1, None, None] * os_
-                s = bilinear(pyr2[level], gl, gs)
-                vl, vs, best = _peak(_ncc_surface(t, s))
+                if compiled:
+                    # issue 32: the same windows and surface, compiled (no m x m coordinate temporaries)
+                    s = ncc_compiled.affine_windows(pyr2[level], cl[act] / f, cs[act] / f, a, half + int(r))
+                    rho = ncc_compiled.ncc_surface(t, s)
+                else:
+                    # image-2 positions of the search window, laid out in image-1 geometry
+                    gl = cl[act, None, None] / f + a[:, 0, 0, None, None] * ol + a[:, 0, 1, None, None] * os_
+                    gs = cs[act, None, None] / f + a[:, 1, 0, None, None] * ol + a[:, 1, 1, None, None] * os_
+                    s = bilinear(pyr2[level], gl, gs)
+                    rho = _ncc_surface(t, s)
+                vl, vs, best = _peak(rho)
                 ok = np.isfinite(best) & ((level == 0) | (best >= coarse_min))
                 # Shift found in image-1 pixels of this level -> image-2 level-0 pixels.
                 cl[act[ok]] += f * (a[ok, 0, 0] * vl[ok] + a[ok, 0, 1] * vs[ok])

@@ -1,0 +1,99 @@
+"""The compiled NCC kernels (issue 32) against independent oracles: a brute-force correlation coefficient
+per shift (np.corrcoef), bilinear resampling at explicitly formed coordinates, and whole pyramid
+searches of the numpy path."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter
+
+from lunarmap.matching import bilinear, build_pyramid, ncc_compiled, ncc_match
+from lunarmap.matching.ncc import window_offsets
+from lunarmap.matching.windowed import WindowedImage
+
+pytestmark = pytest.mark.skipif(not ncc_compiled.AVAILABLE, reason="numba not installed")
+
+
+def _image(shape=(240, 260), seed=0):
+    rng = np.random.default_rng(seed)
+    img = gaussian_filter(rng.normal(100.0, 40.0, shape), 1.5)
+    img[40:52, 60:85] = np.nan                      # invalid pixels: windows touching them fail
+    return img
+
+
+def test_affine_windows_are_bilinear_at_the_affine_grid_also_by_window():
+    img = _image()
+    rng = np.random.default_rng(1)
+    b, r = 25, 11
+    cl, cs = rng.uniform(-15, 255, b), rng.uniform(-15, 275, b)      # some windows leave the image
+    a = np.eye(2) + rng.normal(0.0, 0.25, (b, 2, 2))
+    u, v = window_offsets(r)
+    gl = cl[:, None, None] + a[:, 0, 0, None, None] * u + a[:, 0, 1, None, None] * v
+    gs = cs[:, None, None] + a[:, 1, 0, None, None] * u + a[:, 1, 1, None, None] * v
+    ref = bilinear(img, gl, gs)
+    for image in (img, WindowedImage(img)):
+        out = ncc_compiled.affine_windows(image, cl, cs, a, r)
+        assert np.array_equal(np.isnan(out), np.isnan(ref))
+        assert np.nanmax(np.abs(out - ref)) < 1e-12
+
+
+@pytest.mark.parametrize("fft", [False, True])
+def test_surface_is_the_correlation_coefficient_of_every_shift(fft, monkeypatch):
+    # force either way of forming the cross products
+    monkeypatch.setattr(ncc_compiled, "DIRECT_COST", 1.0 if fft else 0.0)
+    img = _image(seed=2)
+    rng = np.random.default_rng(3)
+    b, t, m = 6, 9, 31
+    l0 = rng.integers(20, 200, b)
+    s0 = rng.integers(20, 220, b)
+    search = np.stack([img[y:y + m, x:x + m] for y, x in zip(l0, s0)])
+    tmpl = np.stack([img[y + 7:y + 7 + t, x + 5:x + 5 + t] + rng.normal(0, 5, (t, t)) for y, x in zip(l0, s0)])
+    tmpl[np.isnan(tmpl)] = 100.0
+    rho = ncc_compiled.ncc_surface(tmpl, search)
+    k = m - t + 1
+    assert rho.shape == (b, k, k)
+    n_valid = 0
+    for i in range(b):
+        for p in range(k):
+            for q in range(k):
+                w = search[i, p:p + t, q:q + t]
+                if np.isnan(w).any():
+                    assert np.isnan(rho[i, p, q])
+                    continue
+                n_valid += 1
+                assert rho[i, p, q] == pytest.approx(np.corrcoef(w.ravel(), tmpl[i].ravel())[0, 1], abs=1e-10)
+    assert n_valid > 0.5 * b * k * k
+    peak = [np.unravel_index(np.nanargmax(r), r.shape) for r in rho]
+    assert all(pk == (7, 5) for pk in peak)          # the template's own position
+
+
+def test_pyramid_search_equals_the_numpy_path():
+    img1 = _image((300, 300), seed=4)
+    rng = np.random.default_rng(5)
+    a = np.array([[1.05, 0.1], [-0.08, 0.97]])
+    ll, ss = np.meshgrid(np.arange(300) + 0.5, np.arange(300) + 0.5, indexing="ij")
+    # image 2: image 1 under the affine map about the centre, moved by (13, -9) pixels
+    inv = np.linalg.inv(a)
+    dl, ds = ll - 150.0 - 13.0, ss - 150.0 + 9.0
+    img2 = bilinear(img1, 150.0 + inv[0, 0] * dl + inv[0, 1] * ds, 150.0 + inv[1, 0] * dl + inv[1, 1] * ds)
+    n = 80
+    l1, s1 = rng.uniform(20, 280, n), rng.uniform(20, 280, n)
+    pl = 150.0 + a[0, 0] * (l1 - 150.0) + a[0, 1] * (s1 - 150.0)
+    ps = 150.0 + a[1, 0] * (l1 - 150.0) + a[1, 1] * (s1 - 150.0)
+    aff = np.broadcast_to(a, (n, 2, 2)).copy()
+    p1, p2 = build_pyramid(img1, 3), build_pyramid(img2, 3)
+    for search in (6.0, 40.0):
+        old = ncc_match(p1, p2, l1, s1, pl, ps, aff, search=search, compiled=False)
+        new = ncc_match(p1, p2, l1, s1, pl, ps, aff, search=search, compiled=True)
+        assert np.array_equal(np.isnan(old.line), np.isnan(new.line))
+        ok = np.isfinite(old.line)
+        assert ok.sum() > 0.5 * n
+        assert np.max(np.abs(new.line[ok] - old.line[ok])) < 1e-8
+        assert np.max(np.abs(new.sample[ok] - old.sample[ok])) < 1e-8
+        assert np.max(np.abs(new.correlation[ok] - old.correlation[ok])) < 1e-9
+        if search > 10:        # the found shift is the constructed one
+            good = ok & (new.correlation > 0.9)
+            assert good.sum() > 0.3 * n
+            assert np.median(np.abs(new.line[good] - pl[good] - 13.0)) < 0.2
+            assert np.median(np.abs(new.sample[good] - ps[good] + 9.0)) < 0.2
