@@ -165,12 +165,18 @@ def screen_starts(model, params: NDArray, obs, X: NDArray, check: NDArray[np.boo
                         "reason": ("start_point", np.zeros(0, dtype=object)),
                         "distance": ("start_point", np.zeros(0)), "start": ("start_point", np.zeros(0, dtype=object)),
                         "moved": ("start_point", np.zeros(0))})
-    use = np.asarray(check, bool)[obs.pt_idx]
-    if not use.any():
+    # the bounds are those of a perspective centre: an RFM's "ray" starts at the top of its fitted height range,
+    # not at a camera (points above it are not behind anything), so its rays are not screened; a point seen
+    # only by such sensors is checked for being finite alone
+    physical = np.array([bool(getattr(sen, "rays_from_position", True)) for sen in model.sensors])
+    nonfinite_all = np.asarray(check, bool) & ~np.all(np.isfinite(X), axis=1)
+    use = np.asarray(check, bool)[obs.pt_idx] & physical[obs.cam_idx]
+    if not use.any() and not nonfinite_all.any():
         return X, empty
     cam, pt, xy = obs.cam_idx[use], obs.pt_idx[use], obs.xy[use]
     origins, dirs = model.rays(params, cam, xy)
     nonfinite, behind, far = _violations(X, pt, origins, dirs, n_pt)
+    nonfinite |= nonfinite_all
     ok_pts = np.asarray(check, bool) & ~nonfinite & ~behind
     dist_ok = np.linalg.norm(X[pt] - origins, axis=1)[ok_pts[pt]]
     # each ray's distance scale: its camera's height above the reference sphere (a block whose cameras descend,
@@ -182,7 +188,7 @@ def screen_starts(model, params: NDArray, obs, X: NDArray, check: NDArray[np.boo
     toofar = np.asarray(check, bool) & ~nonfinite & ~behind & (ratio > bound)
     h_bound = np.inf
     height_bad = np.zeros(n_pt, bool)
-    if radius is not None:
+    if radius is not None and origins.shape[0]:
         h_bound = float(np.median(np.linalg.norm(origins, axis=1))) - float(radius)
         if h_bound > 0:
             with np.errstate(invalid="ignore"):

@@ -88,6 +88,9 @@ class RationalFunctionModel:
     n_samples: int = 0
     attrs: dict[str, Any] = field(default_factory=dict)
 
+    #: its rays (:meth:`rays`) do not start at a sensor position: no behind-camera or range bound applies
+    rays_from_position = False
+
     def __post_init__(self) -> None:
         c = np.array(self.coefficients, dtype=float)
         o = np.array(self.offsets, dtype=float)
