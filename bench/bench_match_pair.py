@@ -178,16 +178,18 @@ STAGES = {  # a function's file and name -> stage (cumulative time of the outerm
 }
 
 
+def _jobs(case: str, folder: Path, size: int) -> list:
+    """One callable per pair of the case: the example's pairs, or the NAC-like window pair."""
+    if case == "example":
+        return [lambda a=a: example_match(a) for a in example_pairs(folder)]
+    return [NacCase(nac_images(size, folder)).match]
+
+
 def profile(case: str, folder: Path, size: int) -> None:
     import cProfile
     import pstats
 
-    if case == "example":
-        pairs = example_pairs(folder)
-        jobs = [lambda a=a: example_match(a) for a in pairs]
-    else:
-        nac = NacCase(nac_images(size, folder))
-        jobs = [nac.match]
+    jobs = _jobs(case, folder, size)
     jobs[0]()                                   # numba compilation, imports
     pr = cProfile.Profile()
     t = time.perf_counter()
@@ -216,12 +218,7 @@ def worker(case: str, folder: Path, size: int) -> None:
     """Serve ``{"i": k, "out": path}`` requests on stdin: match pair k, save it, print the time."""
     import lunarmap
 
-    if case == "example":
-        pairs = example_pairs(folder)
-        jobs = [lambda a=a: example_match(a) for a in pairs]
-    else:
-        nac = NacCase(nac_images(size, folder))
-        jobs = [nac.match]
+    jobs = _jobs(case, folder, size)
     jobs[0]()
     print(json.dumps({"ready": len(jobs), "lunarmap": lunarmap.__file__}), flush=True)
     for line in sys.stdin:
