@@ -15,7 +15,8 @@ Cases:
 Modes::
 
     python bench/bench_match_pair.py --profile [--case example|nac]     # cProfile breakdown by stage
-    python bench/bench_match_pair.py --base /work/wt/m32base [--rounds 3]  # old/new per-pair ratio
+    git worktree add ../lunarmap-base <old commit>
+    python bench/bench_match_pair.py --base ../lunarmap-base [--rounds 3]  # old/new per-pair ratio
 
 With ``--base`` two worker processes are started, one importing lunarmap from this checkout and one from
 ``--base`` (a worktree of the old commit); every pair is matched by both in turn (the order alternates),
