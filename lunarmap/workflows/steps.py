@@ -682,11 +682,8 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
             # the measured image coordinates (line, sample), e.g. to compare with a simulation's truth
             resid["observed"] = (("obs", "coord"), np.asarray(res.result.problem.obs.xy, float))
             if qc_out is not None:
-                st = qc_out.report.final_status()
-                img = st["kind"].values == "image"
-                status = np.full(resid.sizes["obs"], "in", dtype=object)
-                status[st["index"].values[img]] = st["status"].values[img]
-                resid["qc_status"] = ("obs", status.astype(str))
+                status = qc_out.image_status()
+                resid["qc_status"] = ("obs", status)
                 resid["qc_removed"] = ("obs", status != "in")
                 qc_out.report.write(folder / "qc.nc")
                 (folder / "qc.txt").write_text(qc_out.report.table() + "\n")
@@ -761,8 +758,7 @@ def _quality_control(block: Any, names: Sequence[str], groups: Sequence[str], qc
 def _qc_summary(qc_out: Any, block: Any, names: Sequence[str]) -> dict[str, Any]:
     """The run summary's quality-control figures: counts per step and action, removed per point type."""
     rep = qc_out.report
-    removed = np.zeros(block.problem.obs.n, bool)
-    removed[qc_out.removed_image_observations] = True
+    removed = qc_out.image_status() != "in"
     ptype = block.network.point_type[block.problem.obs.pt_idx]
     out: dict[str, Any] = {
         "steps": list(rep.summary.get("steps", [])),

@@ -128,15 +128,23 @@ class QCResult:
     variance: VarianceComponents | None = None
     offsets: dict | None = None
 
+    def image_status(self) -> NDArray[np.str_]:
+        """The final status (:data:`~.status.STATUSES`) of every image observation, by index: the image rows of
+        :meth:`QCReport.final_status`; for a report without the table, ``"in"`` / ``"removed"`` from the
+        ledger's active flags."""
+        st = self.report.status
+        if st is None:
+            return np.where(self.ledger.active, "in", "removed")
+        out = np.full(self.problem.obs.n, "in", dtype=object)
+        img = st["kind"].values == "image"
+        out[st["index"].values[img].astype(np.int64)] = st["status"].values[img]
+        return out.astype(str)
+
     @property
     def removed_image_observations(self) -> NDArray[np.int64]:
         """Image observations that are not in the final adjustment (removed, withdrawn or set aside: every
-        image row of :meth:`QCReport.final_status` whose status is not ``"in"``)."""
-        st = self.report.status
-        if st is None:
-            return np.flatnonzero(~self.ledger.active)
-        img = st["kind"].values == "image"
-        return st["index"].values[img & (st["status"].values != "in")].astype(np.int64)
+        image observation whose :meth:`image_status` is not ``"in"``)."""
+        return np.flatnonzero(self.image_status() != "in")
 
 
 def _best_pair_start(problem: BundleProblem, units_per_km: float) -> BundleProblem:
