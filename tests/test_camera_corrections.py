@@ -219,3 +219,42 @@ def test_linescan_point_without_a_time_projects_to_nan_not_an_error():
     keep = np.arange(5) != 2
     line = cam.line_times.line(t)
     np.testing.assert_allclose(np.column_stack([line, pix[0][:, 1]])[keep], good[keep], atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["nac-lrolrocnac", "tc-kaguyalism"])
+def test_linescan_warm_time_search_ends_where_a_cold_one_does(name, monkeypatch):
+    """The time search starts from the previous call's times for points that moved < 1 km (an adjustment's
+    iterations), and cold for the rest; oracle: the corrected camera's own ground_to_image and a fresh
+    corrections object (cold for every point), on a sequence of moves as an adjustment makes them."""
+    cam = CAMERAS[name]
+    corr = cam.corrections(degree=1)
+    _, _, X = _points(cam, n=60, seed=5)
+    rng = np.random.default_rng(6)
+    scale = np.where(np.array(corr.units) == "rad", 3e-5, 5.0)
+    cold_points: list[int] = []
+    start = type(corr)._start_times
+
+    def counting(self, pts):
+        cold_points.append(pts.shape[0])
+        return start(self, pts)
+
+    monkeypatch.setattr(type(corr), "_start_times", counting)
+    far = np.zeros(len(X), dtype=bool)
+    far[::4] = True                                  # a quarter of the points jump 5 km: these start cold
+    moves = [np.zeros_like(X), rng.normal(0.0, 10.0, X.shape),
+             np.where(far[:, None], 5000.0 / np.sqrt(3.0), rng.normal(0.0, 3.0, X.shape))]
+    expected_cold = [len(X), 0, int(far.sum())]
+    Y = X
+    for move, n_cold in zip(moves, expected_cold):
+        Y = Y + move
+        p = rng.normal(0.0, 1.0, corr.n_params) * scale
+        cold_points.clear()
+        got = corr.project(p, Y)
+        assert sum(cold_points) == n_cold
+        fresh = cam.corrections(degree=1).project(p, Y)
+        np.testing.assert_allclose(got, fresh, atol=1e-7)
+        # the camera's own search sees only its orientation's time span: compare where it finds a time
+        oracle = np.column_stack(corr.apply(p).ground_to_image(Y, within_image=False))
+        seen = np.isfinite(oracle[:, 0])
+        assert seen.sum() >= 0.7 * len(Y)
+        np.testing.assert_allclose(got[seen], oracle[seen], atol=1e-6)
