@@ -562,6 +562,19 @@ def _export(cfg: RunConfig, graph: _Graph, records: list[Done]) -> tuple[dict[st
         except OSError:
             return False
 
+    def derived_fresh(src: str | Path, dst: Path) -> bool:
+        # a file made from a store entry (an RPC's text form): fresh when made from the same entry and still
+        # the content written then (its digest is in the manifest: it never equals the entry's own)
+        rel = str(dst.relative_to(out))
+        was = copied.get(rel, "").split("\n")
+        try:
+            return len(was) == 2 and was[0] == str(src) and dst.exists() and file_digest(dst) == was[1]
+        except OSError:
+            return False
+
+    def derived(src: str | Path, dst: Path) -> None:
+        now[str(dst.relative_to(out))] = f"{src}\n{file_digest(dst)}"
+
     def copy(src: str | Path, dst: Path) -> Path:
         if fresh(src, dst):
             return dst
@@ -594,8 +607,9 @@ def _export(cfg: RunConfig, graph: _Graph, records: list[Done]) -> tuple[dict[st
             for d in by_stage[stage]:
                 copy(d.path, out / stage / f"{d.item}.nc")
                 txt = out / stage / f"{d.item}_RPC.TXT"
-                if not fresh(d.path, txt):
+                if not derived_fresh(d.path, txt):
                     write_rpc_txt(read_netcdf(d.path), txt)
+                derived(d.path, txt)
             files[stage] = out / stage
     (out / "isd").mkdir(exist_ok=True)
     for d in by_stage["isd"]:
