@@ -192,7 +192,7 @@ def _best_pair_start(problem: BundleProblem, units_per_km: float) -> BundleProbl
 #: the auto robust pre-pass runs when more than this fraction of the active image observations fail their w-test
 #: after the first least-squares adjustment. Off (1.0) by default: on 20 random blocks of bench/qc_blocks.py the
 #: dirty blocks fail 96-99 % of their w-tests there, and a pre-pass on all of them found every error in 13/20
-#: blocks against 17/20 for data snooping alone, false removals beyond the clean block's in 7/20 against 3/20
+#: blocks against 17/20 for data snooping alone, false removals beyond the clean block's in 6/20 against 2/20
 AUTO_ROBUST_FRACTION = 1.0
 
 
