@@ -24,22 +24,27 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path[:0] = [HERE, os.path.join(HERE, "..", "tests")]
 
-STRATEGIES = {"sequent>baarda": ("sequent", "baarda"), "baarda": ("baarda",), "robust": ("robust",)}
+#: name -> (steps, QCOptions fields); "baarda" decides the robust pre-pass itself (QCOptions.robust_prepass="auto"),
+#: "baarda-noprepass" is data snooping alone, "baarda-prepass" always starts with the robust pre-pass
+STRATEGIES = {"sequent>baarda": (("sequent", "baarda"), {}), "baarda": (("baarda",), {}),
+              "baarda-noprepass": (("baarda",), {"robust_prepass": False}),
+              "baarda-prepass": (("baarda",), {"robust_prepass": True}), "robust": (("robust",), {})}
 
 
-def run_one(sim, steps):
+def run_one(sim, strategy):
     from qchelp import dlr_problem, score
 
     from lunarmap.adjust import SolverOptions
     from lunarmap.adjust.qc import QCOptions, quality_control
     from lunarmap.errors import QualityControlWarning
 
+    steps, extra = strategy
     t = time.process_time()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", QualityControlWarning)
         try:
             qc = quality_control(dlr_problem(sim), steps, image_group=sim.block.camera,
-                                 options=QCOptions(solver=SolverOptions(ftol=1e-8)))
+                                 options=QCOptions(solver=SolverOptions(ftol=1e-8), **extra))
         except Exception as e:      # noqa: BLE001 -- counted: the acceptance asks for none
             return {"exception": f"{type(e).__name__}: {e}", "trace": traceback.format_exc()[-800:],
                     "cpu": time.process_time() - t}
@@ -50,7 +55,8 @@ def run_one(sim, steps):
     return {"exception": None, "cpu": cpu, "found": s["found"], "total": s["total"], "false": false,
             "score": {k: (v if not isinstance(v, np.generic) else v.item()) for k, v in s.items()},
             "clean": bool(qc.report.clean), "warned": warned,
-            "flags": qc.report.summary.get("flags"), "start": qc.report.summary.get("start")}
+            "flags": qc.report.summary.get("flags"), "start": qc.report.summary.get("start"),
+            "auto_robust_start": qc.report.summary.get("auto_robust_start")}
 
 
 def main(argv=None) -> None:

@@ -258,3 +258,36 @@ def test_a_step_that_fails_on_the_data_ends_the_run_flagged_not_raised(blunder_s
     monkeypatch.setattr(qcmod, "snooping_step", bad_setting)
     with pytest.raises(QualityControlInputError):
         quality_control(dlr_problem(blunder_sim), ("baarda",), options=QCOptions(solver=OPTS))
+
+
+def test_auto_robust_prepass_stays_off_on_a_clean_block_and_its_removals_are_in_the_status_table():
+    """A clean block fails no w-test: the auto rule does not start a robust pre-pass (its figure recorded). Forced
+    on, on the blunder block, the pre-pass removals that nothing gave back are rows of the final status table with
+    step "robust" and status "removed", and they are observations the simulation made wrong or are counted."""
+    clean = dlr_block(seed=2, example="blunders")
+    qc = quality_control(dlr_problem(clean), ("baarda",), options=QCOptions(solver=OPTS))
+    d = qc.report.summary["auto_robust_start"]
+    assert d["mode"] == "auto" and d["run"] is False and d["failing"] <= 2 and "steps_run" not in qc.report.summary
+    assert not any(x.step == "robust" for x in qc.report.decisions)
+
+
+def test_forced_robust_prepass_removals_carry_step_robust(blunder_sim):
+    qc = quality_control(dlr_problem(blunder_sim), ("baarda",), options=QCOptions(solver=OPTS, robust_prepass=True))
+    s = qc.report.summary
+    assert s["steps_run"] == ["robust", "baarda"] and s["auto_robust_start"]["mode"] == "forced"
+    st = qc.image_status()
+    tab = qc.report.status
+    img = tab["kind"].values == "image"
+    rob = img & (tab["step"].values == "robust")
+    assert s["auto_robust_start"]["removed"] == int(np.sum(rob & (tab["status"].values != "in")))
+    assert rob.any() and set(tab["status"].values[rob]) <= {"removed", "set-aside"}
+    assert np.all(st[tab["index"].values[rob].astype(int)] != "in")
+    # the removals are the simulation's errors (large ones first): most of them wrong observations
+    bad = set(blunder_sim.blunders.image_obs.tolist())
+    hit = [int(i) for i in tab["index"].values[rob & (tab["status"].values == "removed")]]
+    assert sum(i in bad for i in hit) >= 0.5 * len(hit)
+
+
+def test_robust_prepass_setting_is_checked(blunder_sim):
+    with pytest.raises(QualityControlInputError):
+        quality_control(dlr_problem(blunder_sim), ("baarda",), options=QCOptions(solver=OPTS, robust_prepass="yes"))
