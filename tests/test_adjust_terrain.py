@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from lunarmap.adjust import ReferenceDtm, dtm_heights
+from lunarmap.adjust.terrain import point_height
 from lunarmap.camera.geodesy import lonlat_height_to_xyz
 from lunarmap.errors import DtmCoverageError, DtmCrsError, TerrainInputError
 from lunarmap.simulate import reference_dtm
@@ -78,3 +79,30 @@ def test_dtm_without_crs_and_bad_sigma_are_named(tmp_path):
         dtm_heights(ReferenceDtm(str(tmp_path / "nocrs.tif"), 2.0), X, 0, 1)
     with pytest.raises(TerrainInputError):
         ReferenceDtm(str(tmp_path / "nocrs.tif"), 0.0)
+
+
+def test_slope_baseline_gives_the_terrain_slope_not_the_noise(tmp_path):
+    """On the plane the baseline's slope is the plane's (closed form); on a noisy plane it is closer to the
+    plane's slope than the cell's own gradient, by about the ratio of baseline to node spacing."""
+    truth = np.array([800.0, -300.0]) * 180.0 / np.pi          # the plane's dh/d(lon, lat), metres per radian
+    X, _ = _points(n=200, seed=7)
+    reference_dtm(tmp_path / "plane.tif", _plane, (9.5, 10.5), (4.5, 5.5), 300.0, noise_sigma=0.0, seed=1)
+    term = dtm_heights(ReferenceDtm(str(tmp_path / "plane.tif"), 2.0, slope_baseline_m=900.0), X, 0, 1)
+    lon, lat, _, _ = point_height(X[term.point_index], term.radius)
+    np.testing.assert_allclose(term.window.slope(lon, lat, 900.0), np.broadcast_to(truth, (lon.size, 2)), rtol=1e-4)
+    reference_dtm(tmp_path / "noisy.tif", _plane, (9.5, 10.5), (4.5, 5.5), 300.0, noise_sigma=30.0, seed=1)
+    noisy = dtm_heights(ReferenceDtm(str(tmp_path / "noisy.tif"), 2.0, slope_baseline_m=3000.0), X, 0, 1)
+    _, cell = noisy.window.sample(lon, lat)
+    base = noisy.window.slope(lon, lat, 3000.0)
+    err_cell = np.sqrt(np.nanmean((cell - truth) ** 2))
+    err_base = np.sqrt(np.nanmean((base - truth) ** 2))
+    assert err_base < 0.3 * err_cell
+    # the term's partials use the baseline's slope: against the plane's closed-form partials they are closer
+    _, _, Jb = noisy.linearize(np.zeros(0), np.zeros(0), X)
+    plain = dtm_heights(ReferenceDtm(str(tmp_path / "noisy.tif"), 2.0), X, 0, 1)
+    _, _, Jc = plain.linearize(np.zeros(0), np.zeros(0), X)
+    exact = dtm_heights(ReferenceDtm(str(tmp_path / "plane.tif"), 2.0), X, 0, 1)
+    _, _, Je = exact.linearize(np.zeros(0), np.zeros(0), X)
+    assert np.sqrt(np.mean((Jb - Je) ** 2)) < 0.3 * np.sqrt(np.mean((Jc - Je) ** 2))
+    with pytest.raises(TerrainInputError, match="slope_baseline"):
+        ReferenceDtm(str(tmp_path / "plane.tif"), 2.0, slope_baseline_m=-1.0)

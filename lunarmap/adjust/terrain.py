@@ -13,6 +13,15 @@ geographic CRS; PROJ's projection differentiated centrally, 1e-9 relative, for a
 On sloping terrain a horizontal shift of the point changes its residual: the DTM observes the
 horizontal position too, the more the steeper the terrain.
 
+The slope of a noisy DTM's cell is mostly its noise (white node noise ``s`` on spacing ``d`` gives
+slopes of ``~s / d``: 3 m on 10 m, 0.3, against a terrain's few percent): taken as terrain, it makes the
+DTM observe horizontal positions it does not know (errors in the variables). With ``slope_baseline_m``
+the partials take the slope from DTM heights that far apart (a central difference over the baseline),
+the terrain's slope at that scale; the residual is still the interpolated height. Measured on the run
+test's synthetic block (white noise 3 m on 10 m nodes, variance components then data snooping):
+check points 20.3 m 3-D, errors / posterior sigma 27 with the cell slopes; 0.73 m and 0.95 with a 48 m
+baseline.
+
 Each :class:`ReferenceDtm` is one observation group (its own variance component) and its rows
 are w-tested by data snooping like the others: a point on steep or changed terrain (a fresh
 crater, a DTM artefact) gets a large w and is down-weighted and named in the QC report.
@@ -71,6 +80,9 @@ class ReferenceDtm:
     point_types : sequence of str
         Point types that get an observation (default tie points only; check points keep their
         independence, control points their own observation).
+    slope_baseline_m : float, optional
+        Ground distance (metres, > 0) between the DTM heights whose difference gives the slope in the
+        partials (module docstring); default the interpolating cell's own gradient.
     """
 
     path: str | os.PathLike[str]
@@ -79,8 +91,15 @@ class ReferenceDtm:
     band: int = 1
     values: str = "height"
     point_types: Sequence[str] = ("tie",)
+    slope_baseline_m: float | None = None
 
     def __post_init__(self) -> None:
+        if self.slope_baseline_m is not None:
+            b = float(self.slope_baseline_m)
+            if not (np.isfinite(b) and b > 0):
+                raise TerrainInputError(f"reference DTM {self.path}: slope_baseline_m must be finite and > 0, "
+                                        f"got {self.slope_baseline_m!r}")
+            self.slope_baseline_m = b
         s = float(self.sigma_m)
         if not (np.isfinite(s) and s > 0):
             raise TerrainInputError(f"reference DTM {self.path}: sigma_m must be finite and > 0, got {self.sigma_m!r}")
@@ -265,6 +284,19 @@ class DtmGrid:
 class DtmWindow:
     """Heights of a window of a :class:`DtmGrid`, bilinear with analytic gradient."""
 
+    def slope(self, lon: NDArray, lat: NDArray, baseline_m: float) -> NDArray:
+        """``dh/d(lon, lat)`` per radian ``(n, 2)`` from the heights ``baseline_m`` metres apart (central
+        differences east-west and north-south on the CRS's sphere; NaN where one of them is)."""
+        lon = np.atleast_1d(np.asarray(lon, float))
+        lat = np.atleast_1d(np.asarray(lat, float))
+        dlat = 0.5 * baseline_m / self.grid.radius                           # radians
+        dlon = dlat / np.maximum(np.cos(np.radians(lat)), 1e-6)
+        he, _ = self.sample(lon + np.degrees(dlon), lat)
+        hw, _ = self.sample(lon - np.degrees(dlon), lat)
+        hn, _ = self.sample(lon, lat + np.degrees(dlat))
+        hs, _ = self.sample(lon, lat - np.degrees(dlat))
+        return np.column_stack([(he - hw) / (2.0 * dlon), (hn - hs) / (2.0 * dlat)])
+
     def __init__(self, grid: DtmGrid, r0: int, c0: int, z: NDArray):
         self.grid, self.r0, self.c0 = grid, r0, c0
         self.z = np.ascontiguousarray(z, float)
@@ -335,6 +367,8 @@ class DtmHeights:
         Candidate points that got no observation (outside the grid or on NaN nodes).
     lost : int
         Rows whose point was outside the window / on a NaN cell at the last linearisation (zero row).
+    slope_baseline : float or None
+        Baseline of the partials' slope, metres (:class:`ReferenceDtm`); None: the cell's gradient.
     """
 
     uses_points = True
@@ -342,7 +376,7 @@ class DtmHeights:
     n_extra = 0
 
     def __init__(self, window: DtmWindow, point_index: NDArray, sigma: float, n_cam_red: int, name: str,
-                 skipped: int = 0, point_ids: NDArray | None = None):
+                 skipped: int = 0, point_ids: NDArray | None = None, slope_baseline: float | None = None):
         self.window = window
         self.point_index = np.asarray(point_index, np.int64)
         self.sigma = float(sigma)
@@ -351,6 +385,7 @@ class DtmHeights:
         self.skipped = int(skipped)
         self.lost = 0
         self.point_ids = point_ids
+        self.slope_baseline = None if slope_baseline is None else float(slope_baseline)
         self._n_img = 0
 
     @property
@@ -384,6 +419,10 @@ class DtmHeights:
         hd, g = self.window.sample(lon, lat)
         ok = np.isfinite(hd)
         self.lost = int(np.sum(~ok))
+        if self.slope_baseline is not None:
+            gb = self.window.slope(lon, lat, self.slope_baseline)
+            # near the window's edge the baseline leaves the grid: the cell's gradient there
+            g = np.where(np.isfinite(gb), gb, g)
         r = np.where(ok, (h - np.where(ok, hd, 0.0)) / self.sigma, 0.0)
         # d v / d X = d|X|/dX - dh/dlon dlon/dX - dh/dlat dlat/dX
         a = D[:, 2] - np.where(ok[:, None], g, 0.0)[:, 0:1] * D[:, 0] - np.where(ok[:, None], g, 0.0)[:, 1:2] * D[:, 1]
@@ -432,6 +471,7 @@ def dtm_heights(dtm: ReferenceDtm, points: NDArray, n_cam_red: int, n_images: in
         raise DtmCoverageError(f"reference DTM {grid.path} covers none of the block's {idx.size} candidate point(s): "
                                f"they are all {where}")
     term = DtmHeights(window, idx[ok], dtm.sigma_m, n_cam_red, str(dtm.name), skipped=int(idx.size - ok.sum()),
-                      point_ids=None if point_ids is None else np.asarray(point_ids)[idx[ok]])
+                      point_ids=None if point_ids is None else np.asarray(point_ids)[idx[ok]],
+                      slope_baseline=dtm.slope_baseline_m)
     term._n_img = int(n_images)
     return term

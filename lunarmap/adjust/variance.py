@@ -344,6 +344,11 @@ def _apply_group_scale(w: Weights, groups: ObservationGroups, step: NDArray) -> 
     w.control_sigma[:n_base][gc >= 0] *= step[gc[gc >= 0]]
     for f, gt in zip(w.term_sigma, groups.terms):
         f[gt >= 0] *= step[gt[gt >= 0]]
+    # the groups' own factors, that a down-weighted row returns to when it is given back
+    assert w.control_vc is not None and w.term_vc is not None
+    w.control_vc[:n_base][gc >= 0] *= step[gc[gc >= 0]]
+    for f, gt in zip(w.term_vc, groups.terms):
+        f[gt >= 0] *= step[gt[gt >= 0]]
 
 
 def _back_to_apriori(w: Weights, groups: ObservationGroups, total: NDArray, weak: NDArray) -> NDArray:

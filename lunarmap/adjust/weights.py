@@ -91,6 +91,11 @@ class Weights:
         Points held fixed because they have too few observations left.
     fixed_images : (n_img,) bool
         Images whose parameters are held at their current values (no observations left).
+    control_vc, term_vc : (k,), list of (m_t,)
+        The part of ``control_sigma`` / ``term_sigma`` that is a variance component of the row's group
+        (1 until a variance-component step scales the group): a row is down-weighted when its factor is
+        above its group's, and given back (reinstated) it returns to its group's factor, not to 1 (a
+        reinstated row at its a-priori sigma would weigh 1 / component^2 times its group's rows).
     """
 
     image_weight: NDArray[np.float64]
@@ -100,6 +105,34 @@ class Weights:
     dropped_points: NDArray[np.bool_]
     fixed_images: NDArray[np.bool_]
     extra: dict = field(default_factory=dict)
+    control_vc: NDArray[np.float64] | None = None
+    term_vc: list | None = None
+
+    def __post_init__(self) -> None:
+        if self.control_vc is None:
+            self.control_vc = np.ones_like(np.asarray(self.control_sigma, float))
+        if self.term_vc is None:
+            self.term_vc = [np.ones_like(np.asarray(f, float)) for f in self.term_sigma]
+
+    def term_downweighted(self, t: int) -> NDArray[np.bool_]:
+        """Rows of term ``t`` whose sigma factor is above their group's variance component (down-weighted)."""
+        assert self.term_vc is not None
+        return self.term_sigma[t] > self.term_vc[t] * (1.0 + 1e-9)
+
+    def control_downweighted(self) -> NDArray[np.bool_]:
+        """Control points whose sigma factor is above their group's variance component (down-weighted)."""
+        assert self.control_vc is not None
+        return self.control_sigma > self.control_vc * (1.0 + 1e-9)
+
+    def restore_term(self, t: int, row: int) -> None:
+        """Give row ``row`` of term ``t`` its group's weight back (its variance component, 1 without one)."""
+        assert self.term_vc is not None
+        self.term_sigma[t][row] = self.term_vc[t][row]
+
+    def restore_control(self, k: int) -> None:
+        """Give control point ``k`` its group's weight back (its variance component, 1 without one)."""
+        assert self.control_vc is not None
+        self.control_sigma[k] = self.control_vc[k]
 
     @classmethod
     def neutral(cls, problem: BundleProblem) -> "Weights":
@@ -110,9 +143,10 @@ class Weights:
                    np.zeros(problem.n_images, bool))
 
     def copy(self) -> "Weights":
+        assert self.control_vc is not None and self.term_vc is not None
         return Weights(self.image_weight.copy(), self.image_sigma.copy(), self.control_sigma.copy(),
                        [t.copy() for t in self.term_sigma], self.dropped_points.copy(), self.fixed_images.copy(),
-                       dict(self.extra))
+                       dict(self.extra), self.control_vc.copy(), [t.copy() for t in self.term_vc])
 
 
 def reweighted_problem(base: BundleProblem, w: Weights, cam_params: NDArray | None = None,

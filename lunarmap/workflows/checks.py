@@ -8,7 +8,11 @@ exist); :func:`check_before_work` reads what the steps would read late and tests
 * the adjustment has a datum: navigation observations (``[adjust.navigation]``) or at least 3 control
   points measured in the run's images;
 * what remains can be adjusted as configured (check points with 2 rays, a tie-point variance factor
-  estimated from the tie points alone when there are no other observations).
+  estimated from the tie points alone when there are no other observations);
+* every ``[[adjust.terrain.dtm]]`` is a readable DTM with a Moon CRS
+  (:class:`~lunarmap.errors.DtmCrsError`, :class:`~lunarmap.errors.TerrainInputError`), and, once the
+  images' footprints are known (before any matching), meets at least one of them
+  (:func:`check_terrain_coverage`, :class:`~lunarmap.errors.DtmCoverageError`).
 
 Each failure is a :class:`~lunarmap.errors.ConfigError` naming the key, the file and the fix.
 """
@@ -22,7 +26,7 @@ import numpy as np
 
 from ..errors import ConfigError, LunarmapError
 
-__all__ = ["PointsCheck", "check_before_work", "restrict_network"]
+__all__ = ["PointsCheck", "check_before_work", "check_terrain_coverage", "restrict_network"]
 
 
 @dataclass(frozen=True)
@@ -109,6 +113,60 @@ def _points(cfg: Any) -> PointsCheck:
     return PointsCheck(n_ctl, n_chk, dm, dp)
 
 
+def _terrain(cfg: Any) -> None:
+    """Open every reference DTM's label (CRS, grid): a DTM without a Moon CRS is refused before any work."""
+    from ..adjust.terrain import DtmGrid
+    from ..errors import TerrainInputError
+
+    for k, d in enumerate(cfg.terrain):
+        try:
+            DtmGrid.open(d.path)
+        except TerrainInputError as err:
+            # the same class (DtmCrsError, ...), the key of the configuration named
+            raise type(err)(f"{cfg.source}: adjust.terrain.dtm[{k}] ({d.name}): {err}") from None
+
+
+def check_terrain_coverage(cfg: Any, footprints: dict[str, Sequence[Any]]) -> None:
+    """Every reference DTM of ``cfg`` meets the images' footprints (their outlines' extent in its grid).
+
+    A necessary condition for a DTM to cover a tie point, tested once the footprints are known and
+    before any pair is matched.
+
+    Parameters
+    ----------
+    cfg : lunarmap.workflows.RunConfig
+    footprints : dict image name -> sequence of lunarmap.evaluate.footprint.Footprint
+
+    Raises
+    ------
+    DtmCoverageError
+        A DTM whose grid no footprint's extent meets (the message names the DTM and its extent).
+    """
+    from ..adjust.terrain import DtmGrid, point_height
+    from ..errors import DtmCoverageError
+
+    for k, d in enumerate(cfg.terrain):
+        grid = DtmGrid.open(d.path)
+        nl, ns = grid.shape
+        meets = False
+        for feet in footprints.values():
+            for f in feet or ():
+                lon, lat, _, _ = point_height(np.asarray(f.xyz, float), grid.radius)
+                col, row = grid.to_pixel(lon, lat)
+                if not (np.isfinite(col).all() and np.isfinite(row).all()):
+                    continue
+                if col.max() >= 0 and col.min() <= ns - 1 and row.max() >= 0 and row.min() <= nl - 1:
+                    meets = True
+                    break
+            if meets:
+                break
+        if not meets:
+            raise DtmCoverageError(
+                f"{cfg.source}: adjust.terrain.dtm[{k}] ({d.name}): reference DTM {d.path} covers none of the "
+                f"run's tie points: its grid ({ns} x {nl} nodes) meets none of the {len(footprints)} images' "
+                "footprints; give a DTM of the block's area, or remove it")
+
+
 def check_before_work(cfg: Any) -> PointsCheck:
     """Test what the run's steps would find in its files, before any of them runs (module docstring).
 
@@ -126,7 +184,11 @@ def check_before_work(cfg: Any) -> PointsCheck:
     ConfigError
         An unreadable points file, points measured in images not in the configuration, no datum; the
         message names the key, the file and the fix.
+    DtmCrsError, TerrainInputError
+        A reference DTM of ``[adjust.terrain]`` without a Moon CRS, or unreadable.
     """
+    if getattr(cfg, "terrain", ()):
+        _terrain(cfg)
     found = _points(cfg) if cfg.points is not None else PointsCheck()
     if cfg.navigation is None and found.control < 3:
         have = (f"{cfg.points} has {found.control} control point(s) measured in the run's images"

@@ -49,6 +49,14 @@ Layout (every relative path is taken relative to the configuration file's folder
     offset_sigma = [50e-6, 50e-6, 50e-6, 50.0, 50.0, 50.0]     # rad, rad, rad, m, m, m
     drift_sigma = [1e-6, 1e-6, 1e-6, 1.0, 1.0, 1.0]           # rad/s, m/s
 
+    [adjust.terrain]                 # optional: reference DTM heights observe the tie points (lunarmap.adjust.terrain)
+    [[adjust.terrain.dtm]]           # one table per DTM: its own observation group and variance component
+    path = "lola_dtm.tif"            # GeoTIFF with a Moon CRS (or an ISIS cube with a Mapping group)
+    sigma = 2.0                      # a-priori sigma of one interpolated height, m
+    name = "lola"                    # optional (default the file's stem); letters, digits, _ . -
+    slope_baseline = 48.0            # optional: slope of the partials from heights this far apart, m
+                                     # (a noisy DTM's cell slopes are its noise; see lunarmap.adjust.terrain)
+
     [adjust.qc]                      # optional: quality control of the adjustment (lunarmap.adjust.quality_control)
     steps = ["baarda"]               # in this order; any of "sequent", "robust", "baarda", "variance", "offsets"
                                      # (["robust", "baarda"] for tie points with many mismatches)
@@ -91,7 +99,8 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["ImageSpec", "NavigationConfig", "QCConfig", "RunConfig", "load_config", "config_from_dict"]
+__all__ = ["ImageSpec", "NavigationConfig", "QCConfig", "TerrainDtmConfig", "RunConfig", "load_config",
+           "config_from_dict"]
 
 _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 
@@ -142,6 +151,33 @@ class QCConfig:
 
 
 @dataclass(frozen=True)
+class TerrainDtmConfig:
+    """One reference DTM of ``[[adjust.terrain.dtm]]`` (see :class:`lunarmap.adjust.ReferenceDtm`).
+
+    Attributes
+    ----------
+    name : str
+        Its observation group is ``"terrain <name>"``.
+    path : Path
+        The DTM file (absolute).
+    sigma : float
+        A-priori sigma of one interpolated height, metres.
+    slope_baseline : float or None
+        Baseline of the partials' slope, metres (None: the cell's gradient).
+    """
+
+    name: str
+    path: Path
+    sigma: float
+    slope_baseline: float | None = None
+
+    @property
+    def group(self) -> str:
+        """The observation group's name (variance component, QC decisions)."""
+        return f"terrain {self.name}"
+
+
+@dataclass(frozen=True)
 class RunConfig:
     """A validated run configuration (see the module docstring)."""
 
@@ -164,6 +200,7 @@ class RunConfig:
     ftol: float = 1e-10
     navigation: NavigationConfig | None = None
     qc: QCConfig | None = None
+    terrain: tuple[TerrainDtmConfig, ...] = ()
     html: bool = True
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -185,7 +222,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], bool]]] = {
     "tiepoints": {"cell": (int, False), "search": ((int, float), False), "min_overlap": ((int, float), False),
                   "max_points": (int, False)},
     "adjust": {"degree": (int, False), "estimate_tie_variance": (bool, False), "ftol": ((int, float), False),
-               "navigation": (dict, False), "qc": (dict, False)},
+               "navigation": (dict, False), "qc": (dict, False), "terrain": (dict, False)},
     "report": {"html": (bool, False)},
 }
 _NAV = {"position_sigma": ((int, float), True), "attitude_sigma": ((int, float), True),
@@ -195,6 +232,9 @@ _QC = {"steps": (list, False), "sequent_limit_km": ((int, float), False), "robus
        "robust_scale": (str, False), "baarda_limit": ((int, float), False), "baarda_per_round": (str, False),
        "baarda_sigma0": (str, False), "baarda_separable": (bool, False),
        "downweight_factor": ((int, float), False), "max_rounds": (int, False), "max_seconds": ((int, float), False)}
+_TERRAIN = {"dtm": (list, True)}
+_TERRAIN_DTM = {"path": (str, True), "sigma": ((int, float), True), "name": (str, False),
+                "slope_baseline": ((int, float), False)}
 _IMAGE = {"name": (str, True), "label": (str, True), "pixels": (str, True), "group": ((str, int), False)}
 
 
@@ -279,6 +319,36 @@ def _qc_config(q: Mapping[str, Any], navigation: bool, largest_group: int, src: 
                     float(q["max_seconds"]) if "max_seconds" in q else None)
 
 
+def _terrain_config(t: Any, base: Path, src: str) -> tuple[TerrainDtmConfig, ...]:
+    if not isinstance(t, dict):
+        raise ConfigError(f"{src}: [adjust.terrain] must be a table")
+    _check_table(t, _TERRAIN, "adjust.terrain", src)
+    if not t["dtm"]:
+        raise ConfigError(f"{src}: adjust.terrain.dtm must list at least one [[adjust.terrain.dtm]] table")
+    out: list[TerrainDtmConfig] = []
+    for k, e in enumerate(t["dtm"]):
+        where = f"adjust.terrain.dtm[{k}]"
+        if not isinstance(e, dict):
+            raise ConfigError(f"{src}: {where} must be a table")
+        _check_table(e, _TERRAIN_DTM, where, src)
+        path = _path(base, e["path"], f"{where}.path", src)
+        name = e.get("name", path.stem)
+        if not _NAME.match(name):
+            raise ConfigError(f"{src}: {where}.name {name!r} may hold only letters, digits, '_', '.', '-'")
+        if any(d.name == name for d in out):
+            raise ConfigError(f"{src}: {where}.name {name!r} repeats (each DTM is its own observation group)")
+        sigma = float(e["sigma"])
+        if not (sigma > 0 and sigma < float("inf")):
+            raise ConfigError(f"{src}: {where}.sigma must be > 0 metres, got {e['sigma']!r}")
+        baseline = None
+        if "slope_baseline" in e:
+            baseline = float(e["slope_baseline"])
+            if not (baseline > 0 and baseline < float("inf")):
+                raise ConfigError(f"{src}: {where}.slope_baseline must be > 0 metres, got {e['slope_baseline']!r}")
+        out.append(TerrainDtmConfig(name, path, sigma, baseline))
+    return tuple(out)
+
+
 def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",
                      source: str = "<dict>") -> RunConfig:
     """Validate a configuration already parsed into a dict (``base``: folder for relative paths)."""
@@ -343,6 +413,13 @@ def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",
         for im in images:
             per_group[im.group or im.name] = per_group.get(im.group or im.name, 0) + 1
         qc = _qc_config(adj["qc"], nav is not None, max(per_group.values()), src)
+    terrain = _terrain_config(adj["terrain"], base_p, src) if "terrain" in adj else ()
+    if terrain and qc is not None and "variance" in qc.steps and "baarda" in qc.steps \
+            and qc.steps.index("variance") > qc.steps.index("baarda"):
+        # the w-tests of the DTM heights rest on their sigma: tested at a wrong a-priori sigma (the DTM's
+        # error is what the run estimates), good heights go or bad ones stay
+        raise ConfigError(f"{src}: adjust.qc.steps {list(qc.steps)}: with [adjust.terrain], 'variance' must come "
+                          "before 'baarda' (the DTM heights are tested at their estimated sigma)")
     other_images = d.get("points", {}).get("other_images", "error")
     if other_images not in ("error", "ignore"):
         raise ConfigError(f"{src}: points.other_images must be 'error' or 'ignore', got {other_images!r}")
@@ -376,7 +453,7 @@ def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",
         points_other_images=other_images,
         rpc_enabled=bool(rpc.get("enabled", True)), rpc_height_range=height_range, cell=cell, search=search,
         min_overlap=min_overlap, max_points=max_points or None, degree=degree, estimate_tie_variance=bool(adj.get("estimate_tie_variance", True)),
-        ftol=float(adj.get("ftol", 1e-10)), navigation=nav, qc=qc, html=bool(rep.get("html", True)))
+        ftol=float(adj.get("ftol", 1e-10)), navigation=nav, qc=qc, terrain=terrain, html=bool(rep.get("html", True)))
 
 
 def load_config(path: str | os.PathLike[str]) -> RunConfig:

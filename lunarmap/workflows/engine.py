@@ -289,13 +289,18 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
     groups = [im.group for im in cfg.images]
     points = str(cfg.points) if cfg.points is not None else None
     qc = None if cfg.qc is None or not cfg.qc.steps else {**asdict(cfg.qc), "steps": list(cfg.qc.steps)}
+    # the reference DTMs: their parameters and their files' content (a changed DTM reruns the adjustment)
+    terrain = [{"name": d.name, "path": str(d.path), "sigma": d.sigma, "slope_baseline": d.slope_baseline}
+               for d in cfg.terrain]
     k_adj = step_key("adjust", [cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, groups, names]
                      + ([qc] if qc is not None else [])
-                     + ([cfg.points_other_images] if points and cfg.points_other_images != "error" else []),
-                     [isd_key[n] for n in names] + [k_tie, file_digest(cfg.points) if cfg.points is not None else ""])
+                     + ([cfg.points_other_images] if points and cfg.points_other_images != "error" else [])
+                     + ([[{k: v for k, v in d.items() if k != "path"} for d in terrain]] if terrain else []),
+                     [isd_key[n] for n in names] + [k_tie, file_digest(cfg.points) if cfg.points is not None else ""]
+                     + [file_digest(d.path) for d in cfg.terrain])
     adj = node("adjust", k_adj, adjust_step, store, k_adj, names, groups, [rec[n]["isd"] for n in names], ties,
                points, cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, attrs, qc, cfg.points_other_images,
-               out=[store.path("adjust", k_adj)])
+               terrain or None, out=[store.path("adjust", k_adj)])
     k_ker = step_key("kernels", None, [k_adj, kernels_digest])
     node("kernels", k_ker, kernels_step, store, k_ker, names, adj, [rec[n]["isd"] for n in names],
          str(cfg.metakernel), out=[store.path("kernels", k_ker) / "kernels.json"])
@@ -738,6 +743,13 @@ def _run_locked(cfg: RunConfig, scheduler: Any, workers: int, report: bool | Non
             return scheduler
 
         done = _execute(first, scheduler_for(first), progress)
+        if cfg.terrain:
+            from .checks import check_terrain_coverage
+
+            # a DTM of another area is named before any pair is matched
+            image_done = {n: done.get(f"image-{job.isd_key}") for n, job in first.jobs.items()}
+            check_terrain_coverage(cfg, {n: v.footprints or [] for n, v in image_done.items()
+                                         if isinstance(v, ImageDone)})
         graph = build_graph(cfg, store, done=done)
         n_all = len(graph.names) * (len(graph.names) - 1) // 2
         _log.info("pairs: %d of %d whose footprints can meet; %d block tasks", len(graph.pairs), n_all,

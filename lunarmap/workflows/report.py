@@ -482,6 +482,28 @@ def write_report(result: Any, qc_truth: dict[str, Any] | None = None) -> Path:
                       f"<code>outputs/adjustment/qc.txt</code>, every field in <code>qc.nc</code>).</p>"
                       f"<details open><summary>what the columns mean</summary><dl>{explain}</dl></details>"
                       f"<div class=\"scroll\">{_table(cols, qrows, sortable=True, cls='qc num')}</div>")
+    terrain_section = ""
+    if summary.get("terrain"):
+        def num(v: Any, f: str = ".3f") -> str:
+            return format(v, f) if isinstance(v, (int, float)) and np.isfinite(v) else ""
+
+        trows = [[name, t["observations"], t["outside_dtm"], num(t["rms_residual_m"]), num(t["sigma_apriori_m"]),
+                  num(t["sigma_estimated_m"]) if t["variance_component_estimated"] else "not estimated",
+                  num(t["sigma_estimated_sd_m"]) if t["variance_component_estimated"] else "",
+                  num(t["variance_component"], ".4g"), t["removed"]]
+                 for name, t in summary["terrain"].items()]
+        thead = [("DTM", "name of the [[adjust.terrain.dtm]] table"),
+                 ("observations", "tie point heights observed by the DTM"),
+                 ("outside", "tie points outside the DTM or on its holes (no observation)"),
+                 ("RMS residual (m)", "point height minus DTM height, over the rows in the final adjustment"),
+                 ("a-priori sigma (m)", "sigma of the configuration"),
+                 ("estimated sigma (m)", "a-priori sigma x the square root of the group's variance component"),
+                 ("± (m)", "standard deviation of the estimated sigma"),
+                 ("variance component", "factor on the a-priori variance (1: the a-priori sigma was right)"),
+                 ("removed", "rows down-weighted by the w-tests, or whose point quality control took out")]
+        terrain_section = ("<h2 id=\"terrain\">Reference DTMs</h2><p>DTM heights observing the tie points "
+                           "(one row per observation in <code>outputs/adjustment/terrain_residuals.nc</code>).</p>"
+                           + _table(thead, trows, cls="num"))
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>lunarmap run report</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em}}
@@ -501,6 +523,7 @@ dl{{font-size:.9em}} dt{{font-weight:bold;float:left;width:5em}} dd{{margin-left
          ("normalised RMS", "RMS of residual / sigma")], [list(g) for g in groups])}
 {fig("map")}{fig("residuals")}{fig("check_points")}
 {check_section}
+{terrain_section}
 {qc_section}
 {fig("timings")}
 <h2>Skipped pairs</h2><pre>{html.escape(chr(10).join(summary.get("skipped_pairs", [])) or "none")}</pre>

@@ -574,7 +574,8 @@ def tiepoints_step(store: Store, key: str, names: Sequence[str], pairs: Sequence
 def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[str], isds: Sequence[Done],
                 ties: Done, points: str | None, degree: int, navigation: dict[str, Any] | None,
                 estimate_tie_variance: bool, ftol: float, attrs: dict[str, Any],
-                qc: dict[str, Any] | None = None, other_images: str = "error") -> Done:
+                qc: dict[str, Any] | None = None, other_images: str = "error",
+                terrain: Sequence[dict[str, Any]] | None = None) -> Done:
     """Adjust the block on the images' rigorous cameras; write the results as netCDF and adjusted ISDs.
 
     With ``qc`` (the fields of :class:`~lunarmap.workflows.config.QCConfig`) the adjustment is quality
@@ -583,6 +584,13 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
     what quality control kept, unless its ``variance`` step estimated every group's. With
     ``other_images="ignore"`` the points' measures in images not in ``names`` are dropped
     (:func:`lunarmap.workflows.checks.restrict_network`).
+
+    ``terrain`` (the fields of :class:`~lunarmap.workflows.config.TerrainDtmConfig`, one dict per DTM):
+    reference DTM heights observe the tie points inside each DTM (:mod:`lunarmap.adjust.terrain`), one
+    observation group ``"terrain <name>"`` each (variance component, w-tests); the summary's ``terrain``
+    section and ``terrain_residuals.nc`` report them. A DTM without a Moon CRS or covering no tie point
+    raises its own error (:class:`~lunarmap.errors.DtmCrsError`, :class:`~lunarmap.errors.DtmCoverageError`),
+    and nothing of the step is written.
     """
     t = time.perf_counter()
     if store.has("adjust", key):
@@ -597,7 +605,9 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
     )
     from ..adjust.block import Block, BlockResult
     from ..adjust.export import adjusted_image_support
+    from ..adjust.terrain import ReferenceDtm
     from ..adjust.variance import estimate_image_variances
+    from ..errors import TerrainInputError
     from ..matching.tiepoints import read_tiepoints
     from ..orientation.isd import ImageSupport
     from ..procmem import peak_rss_during
@@ -617,7 +627,12 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
             spec = None
             if navigation is not None:
                 spec = NavigationSpec(orbit={n: g or n for n, g in zip(names, groups)}, **navigation)
-            block = build_block(cams, net, degree=degree, navigation=spec)
+            refs = [ReferenceDtm(d["path"], d["sigma"], name=f"terrain {d['name']}",
+                                 slope_baseline_m=d.get("slope_baseline")) for d in terrain or ()]
+            block = build_block(cams, net, degree=degree, navigation=spec, terrain=refs)
+            for d, term in zip(terrain or (), block.terrain):
+                _log.info("adjust: reference DTM %s: %d tie point heights observed (sigma %.3g m), %d outside it",
+                          d["name"], term.n_obs_scalar, term.sigma, term.skipped)
             _log.info("adjust: block of %d images, %d points, %d image observations%s", len(names),
                       block.problem.n_points, block.problem.obs.n,
                       f", quality control {' -> '.join(qc['steps'])}" if qc is not None and qc["steps"] else "")
@@ -645,6 +660,8 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
             _log.info("adjust: sigma0 %.4f after %d iterations; writing adjusted ISDs, posterior precision, "
                       "check points", res.sigma0, int(res.result.iterations))
             adjusted_isds = adjusted_image_support(res, {n: ImageSupport.read_json(d.path) for n, d in zip(names, isds)})
+        except TerrainInputError:
+            raise           # named as it is (DtmCrsError, DtmCoverageError): the DTM is the user's to fix
         except LunarmapError as err:
             raise _fail("adjust", "", err) from None
 
@@ -665,6 +682,9 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
                 net_eval = replace(block.network, point_type=np.where(lost, "tie", block.network.point_type))
                 check_res = BlockResult(Block(block.names, block.model, net_eval, result.problem, block.navigation), result)
         has_check = bool(np.any(check_res.block.network.point_type == "check"))
+        terrain_ds = None
+        if block.terrain:
+            summary["terrain"], terrain_ds = _terrain_outputs(block, res, qc_out, est, list(terrain or ()))
 
         def write(folder: Path) -> None:
             geo = {"crs": MOON_GEOGRAPHIC_CRS, **attrs}
@@ -689,6 +709,9 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
                 (folder / "qc.txt").write_text(qc_out.report.table() + "\n")
             resid.attrs.update(attrs)
             resid.to_netcdf(folder / "residuals.nc")
+            if terrain_ds is not None:
+                terrain_ds.attrs.update(attrs)
+                terrain_ds.to_netcdf(folder / "terrain_residuals.nc")
             if has_check:
                 from ..evaluate import block_check_errors
 
@@ -716,6 +739,66 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
         path = store.write_dir("adjust", key, write)
         return Done("adjust", key, "", str(path), True, time.perf_counter() - t,
                     note=f"sigma0 {summary['sigma0']:.3f}")
+
+
+def _terrain_outputs(block: Any, res: Any, qc_out: Any, est: Any,
+                     terrain: list[dict[str, Any]]) -> tuple[dict[str, Any], xr.Dataset]:
+    """The summary's ``terrain`` section and ``terrain_residuals.nc`` of a block with reference DTMs.
+
+    Per DTM: observations, RMS of the final residuals (point height minus DTM height, metres), its group's
+    sigma scale (the square root of its variance component: the a-priori sigma times it is the estimated
+    sigma of one DTM height) with its standard deviation, and the rows quality control down-weighted.
+    Per observation: point id, DTM name, residual (metres), normalised residual (residual over the row's
+    final sigma: a-priori sigma x sigma scale x down-weighting) and status (``"in"``, ``"down-weighted"``,
+    ``"point out"`` when quality control took its point out, ``"lost"`` when the point left the DTM).
+    """
+    base_terms = list(block.problem.terms)
+    points = np.asarray(res.result.points, float)
+    weights = qc_out.ledger.weights if qc_out is not None else None
+    vc = qc_out.variance if qc_out is not None else None
+    section: dict[str, Any] = {}
+    cols: dict[str, list[Any]] = {k: [] for k in ("point_id", "dtm", "residual", "normalized", "status")}
+    for d, term in zip(terrain, block.terrain):
+        t = next(i for i, x in enumerate(base_terms) if x is term)
+        r = np.asarray(term.residuals_m(points), float)
+        factor = np.ones(r.size) if weights is None else np.asarray(weights.term_sigma[t], float)
+        down = np.zeros(r.size, bool) if weights is None else np.asarray(weights.term_downweighted(t), bool)
+        out_pt = np.zeros(r.size, bool) if weights is None else np.asarray(weights.dropped_points, bool)[term.point_index]
+        status = np.where(~np.isfinite(r), "lost", np.where(out_pt, "point out", np.where(down, "down-weighted", "in")))
+        scale, scale_sd, estimated = 1.0, float("nan"), False
+        if vc is not None and term.name in vc.names:
+            j = vc.names.index(term.name)
+            estimated = bool(vc.estimated[j])
+            scale = float(vc.scale[j])
+            joint = vc.scale_sigma_joint
+            scale_sd = float(joint[j]) if joint is not None and np.isfinite(joint[j]) else float(vc.scale_sigma[j])
+        ok = status == "in"
+        section[d["name"]] = {
+            "group": term.name, "observations": int(r.size), "outside_dtm": int(term.skipped),
+            "rms_residual_m": float(np.sqrt(np.mean(r[ok] ** 2))) if ok.any() else float("nan"),
+            "sigma_apriori_m": float(term.sigma), "variance_component_estimated": estimated,
+            "sigma_scale": scale, "sigma_scale_sd": scale_sd,
+            "variance_component": scale ** 2,
+            "sigma_estimated_m": float(term.sigma * scale), "sigma_estimated_sd_m": float(term.sigma * scale_sd),
+            "removed": int(np.sum(status != "in")), "downweighted": int(down.sum()),
+            "slope_baseline_m": d.get("slope_baseline"),
+        }
+        ids = term.point_ids if term.point_ids is not None else block.network.point_id[term.point_index]
+        cols["point_id"] += [str(x) for x in ids]
+        cols["dtm"] += [d["name"]] * r.size
+        cols["residual"] += r.tolist()
+        cols["normalized"] += (r / (term.sigma * factor)).tolist()
+        cols["status"] += status.tolist()
+    ds = xr.Dataset(
+        {"point_id": ("observation", np.asarray(cols["point_id"], dtype=object)),
+         "dtm": ("observation", np.asarray(cols["dtm"], dtype=object)),
+         "residual": ("observation", np.asarray(cols["residual"], float), {"units": "m",
+                      "long_name": "adjusted point height minus reference DTM height"}),
+         "normalized_residual": ("observation", np.asarray(cols["normalized"], float),
+                                 {"long_name": "residual / final sigma (a-priori x sigma scale x down-weighting)"}),
+         "status": ("observation", np.asarray(cols["status"], dtype=object))},
+        coords={"observation": np.arange(len(cols["dtm"]))})
+    return section, ds
 
 
 def _quality_control(block: Any, names: Sequence[str], groups: Sequence[str], qc: dict[str, Any], opts: Any) -> Any:

@@ -52,6 +52,10 @@ def _set_term(ledger: Ledger, t: int, new: NavigationObservations) -> None:
     f[:n_img_rows] = ledger.weights.term_sigma[t][:n_img_rows]
     ledger.terms[t] = new
     ledger.weights.term_sigma[t] = f
+    assert ledger.weights.term_vc is not None
+    vc = np.ones(new.n_obs_scalar)
+    vc[:n_img_rows] = ledger.weights.term_vc[t][:n_img_rows]
+    ledger.weights.term_vc[t] = vc
 
 
 def _extra_slice(ledger: Ledger, t: int) -> slice:

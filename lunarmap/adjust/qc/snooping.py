@@ -226,15 +226,17 @@ def _restorable(ledger: Ledger, limit: float, done: set, every: bool = False) ->
     all of them, whatever their residual (each once)."""
     res = _result(ledger)
     out: list[tuple] = []
+    assert ledger.weights.term_vc is not None and ledger.weights.control_vc is not None
     for t, f in enumerate(ledger.weights.term_sigma):
-        rows = np.flatnonzero(f > 1.0)
+        rows = np.flatnonzero(ledger.weights.term_downweighted(t))
         if rows.size == 0:
             continue
         rx = term_residuals(res.problem.terms[t], res.cam_params, res._term_extra(t), res.points)
-        z = np.abs(rx[rows]) * f[rows]          # back to the a-priori sigma
+        # back to the group's weight (its variance component; the a-priori sigma without one)
+        z = np.abs(rx[rows]) * f[rows] / ledger.weights.term_vc[t][rows]
         out += [("term", t, int(r)) for r, zz in zip(rows, z)
                 if (every or zz <= limit) and ("term", t, int(r)) not in done]
-    k = np.flatnonzero(ledger.weights.control_sigma > 1.0)
+    k = np.flatnonzero(ledger.weights.control_downweighted())
     if k.size:
         pt = prior_terms(res.problem, res.points)
         base = ledger.base.priors
@@ -243,7 +245,7 @@ def _restorable(ledger: Ledger, limit: float, done: set, every: bool = False) ->
         for kk in k:
             if base.fixed[kk]:
                 continue
-            z = np.max(np.abs(pt[1][rows[kk]])) * ledger.weights.control_sigma[kk]
+            z = np.max(np.abs(pt[1][rows[kk]])) * ledger.weights.control_sigma[kk] / ledger.weights.control_vc[kk]
             if (every or z <= limit) and ("control", int(kk)) not in done:
                 out.append(("control", int(kk)))
     return out
@@ -297,7 +299,8 @@ def _trial_costs(ledger: Ledger, cand: NDArray[np.int64], cam: int, options: Sol
         w.image_weight[cand] = 1.0
         w.image_weight[cand[k]] = 0.0
         for t, r in enumerate(rows):
-            w.term_sigma[t][r] = 1.0
+            for row in np.atleast_1d(r):
+                w.restore_term(t, int(row))
         try:
             pb = ledger._finite(reweighted_problem(ledger.base, w, res.cam_params, res.points, ledger.terms))
             cost[k] = solve(pb, opts).cost
@@ -498,7 +501,7 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
                     continue
                 # and the observations it gives back fit: an image with a second error of its own would get
                 # that one back (each given-back coordinate allowed limit**2, the w-test's own bound)
-                n_back = 2 * (rem.size - 1) + sum(int(np.sum(ledger.weights.term_sigma[t][r] > 1.0))
+                n_back = 2 * (rem.size - 1) + sum(int(np.sum(ledger.weights.term_downweighted(t)[r]))
                                                   for t, r in enumerate(_nav_rows(ledger, unit)))
                 if 2.0 * (cost[best] - _result(ledger).cost) > limit ** 2 * max(n_back, 1):
                     continue
@@ -506,8 +509,8 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
                 continue                        # nothing would change
             if kind == "image":
                 for t, r in enumerate(_nav_rows(ledger, unit)):
-                    for row in r[ledger.weights.term_sigma[t][r] > 1.0]:
-                        ledger.weights.term_sigma[t][row] = 1.0
+                    for row in r[ledger.weights.term_downweighted(t)[r]]:
+                        ledger.weights.restore_term(t, int(row))
                         hits.pop((t, int(row)), None)     # a navigation error of its own is tested afresh
                         ledger.decisions.append(Decision("baarda", rnd, "navigation", int(row), unit,
                                                          action="reinstated"))
@@ -711,12 +714,14 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
                 ledger.reinstate_image(back, "baarda", rnd)
             for key in rows:
                 restored.add(key)
+                # back to its group's variance component, not to the a-priori sigma
                 if key[0] == "control":
-                    ledger.weights.control_sigma[key[1]] = 1.0
+                    ledger.weights.restore_control(key[1])
                 else:
-                    ledger.weights.term_sigma[key[1]][key[2]] = 1.0
-                ledger.decisions.append(Decision("baarda", rnd, "navigation" if key[0] == "term" else "control",
-                                                 key[-1], action="reinstated"))
+                    ledger.weights.restore_term(key[1], key[2])
+                kind = ("control" if key[0] == "control" else
+                        "terrain" if getattr(ledger.terms[key[1]], "uses_points", False) else "navigation")
+                ledger.decisions.append(Decision("baarda", rnd, kind, key[-1], action="reinstated"))
             continue
         cands.sort(key=lambda c: -c[0])
         if per_round == "one":

@@ -106,14 +106,15 @@ def final_status(ledger: Ledger) -> xr.Dataset:
     pri = base.priors
     if pri is not None:
         for k in np.flatnonzero(~pri.fixed):
-            f = float(ledger.weights.control_sigma[k])
-            rows.append(("control", int(k), -1, -1, int(pri.idx[k]), "down-weighted" if f > 1.0 else "in",
+            ctl_down = bool(ledger.weights.control_downweighted()[k])
+            rows.append(("control", int(k), -1, -1, int(pri.idx[k]), "down-weighted" if ctl_down else "in",
                          ctl_last.get(int(k))))
     for t, fac in enumerate(ledger.weights.term_sigma):
         table = getattr(ledger.terms[t], "row_table", None)
         img_of = table()["image"] if table is not None else np.full(fac.size, -1)
+        down = ledger.weights.term_downweighted(t)
         for r in range(fac.size):
-            rows.append(("navigation", r, t, int(img_of[r]), -1, "down-weighted" if fac[r] > 1.0 else "in",
+            rows.append(("navigation", r, t, int(img_of[r]), -1, "down-weighted" if down[r] else "in",
                          nav_last.get(r)))
     if rows:
         kind = np.concatenate([kind, np.array([r[0] for r in rows], dtype=object)])
