@@ -271,6 +271,17 @@ def test_auto_robust_prepass_stays_off_on_a_clean_block_and_its_removals_are_in_
     assert not any(x.step == "robust" for x in qc.report.decisions)
 
 
+def test_forced_robust_prepass_figures_reach_the_qc_file(blunder_sim, tmp_path):
+    """The pre-pass decision (a nested summary entry) is written as flat netCDF attributes, read back equal."""
+    qc = quality_control(dlr_problem(blunder_sim), ("baarda",), options=QCOptions(solver=OPTS, robust_prepass=True))
+    d = qc.report.summary["auto_robust_start"]
+    with xr.open_dataset(qc.report.write(tmp_path / "qc.nc")) as ds:
+        assert ds.attrs["auto_robust_start_mode"] == "forced"
+        assert int(ds.attrs["auto_robust_start_run"]) == 1
+        assert int(ds.attrs["auto_robust_start_removed"]) == d["removed"]
+        assert ds.attrs["steps_run"] == "robust, baarda"
+
+
 def test_forced_robust_prepass_removals_carry_step_robust(blunder_sim):
     qc = quality_control(dlr_problem(blunder_sim), ("baarda",), options=QCOptions(solver=OPTS, robust_prepass=True))
     s = qc.report.summary

@@ -122,10 +122,7 @@ class QCReport:
         if self.status is not None:
             st = self.status.rename({k: f"status_{k}" for k in self.status.data_vars})
             ds = ds.merge(st.rename({"observation": "status_row"}))
-        for k, v in self.summary.items():
-            if isinstance(v, bool):
-                v = int(v)          # netCDF has no boolean attribute
-            ds.attrs[k] = v if not isinstance(v, (list, tuple)) else ("; " if k == "flags" else ", ").join(map(str, v))
+        ds.attrs.update(_netcdf_attrs(self.summary))
         return ds
 
     def write(self, path: str | os.PathLike) -> Path:
@@ -198,3 +195,22 @@ class QCReport:
 
     def __str__(self) -> str:
         return self.table()
+
+
+def _netcdf_attrs(summary: dict, prefix: str = "") -> dict:
+    """The summary as netCDF attributes: nested dicts flattened to ``outer_inner`` names, booleans as
+    0/1 and None as "none" (netCDF has neither), lists joined into one string."""
+    out: dict = {}
+    for k, v in summary.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(_netcdf_attrs(v, f"{name}_"))
+            continue
+        if isinstance(v, bool):
+            v = int(v)
+        elif v is None:
+            v = "none"
+        elif isinstance(v, (list, tuple)):
+            v = ("; " if k == "flags" else ", ").join(map(str, v))
+        out[name] = v
+    return out
