@@ -159,3 +159,20 @@ def test_surface_equals_the_numpy_surface_on_random_windows():
         assert np.array_equal(np.isnan(out), np.isnan(ref))
         assert np.isfinite(ref).any()
         assert np.nanmax(np.abs(out - ref)) < 1e-12
+
+
+def test_templates_under_the_identity_are_bilinear_bit_for_bit():
+    # ncc_match and lsm_match sample their templates by affine_windows under the identity (issue 32,
+    # item 5): the very values bilinear gives at the template grid, also by window and at the edges
+    img = _image(seed=13)
+    rng = np.random.default_rng(14)
+    b, r = 40, 7
+    cl, cs = rng.uniform(-5, 245, b), rng.uniform(-5, 265, b)
+    cl[:5] = np.round(cl[:5]) + 0.5                   # on pixel centres
+    u, v = window_offsets(r)
+    ref = bilinear(img, cl[:, None, None] + u, cs[:, None, None] + v)
+    eye = np.broadcast_to(np.eye(2), (b, 2, 2))
+    for image in (img, WindowedImage(img)):
+        out = ncc_compiled.affine_windows(image, cl, cs, eye, r)
+        assert np.array_equal(out, ref, equal_nan=True)
+    assert np.isnan(ref).any() and np.isfinite(ref).any()

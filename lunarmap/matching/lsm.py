@@ -335,7 +335,13 @@ def _lsm_batch(image1: NDArray, image2: Array, l1: Array, s1: Array, l2: Array, 
     # Jacobian and Hessian formed once, image 2 resampled without gradients) was tried: each
     # iteration cost half as much, but with noisy templates it converged only linearly (9
     # iterations on average instead of 5.3, a fifth of the matches unconverged after 20).
-    g1 = bilinear(image1, l1[:, None] + u, s1[:, None] + w)  # (b, npx)
+    if compiled:
+        # the template by the NCC search's compiled kernel under the identity: bilinear's values (issue 32)
+        from .ncc_compiled import affine_windows
+
+        g1 = affine_windows(image1, l1, s1, np.broadcast_to(np.eye(2), (b, 2, 2)), half).reshape(b, -1)
+    else:
+        g1 = bilinear(image1, l1[:, None] + u, s1[:, None] + w)  # (b, npx)
     P = 8 if direction is None else 11
     # relief terms of matches without an epipolar direction have zero columns: held at 0 by a unit diagonal
     held = np.zeros(b) if direction is None else 3.0 * ~np.any(direction != 0.0, axis=1)
