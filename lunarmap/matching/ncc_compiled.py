@@ -221,6 +221,12 @@ def affine_windows(image: Any, cl: Array, cs: Array, a: Array, r: int) -> Array:
     return out
 
 
+def _fast_lengths(n: NDArray[np.int64], real: bool) -> NDArray[np.int64]:
+    """:func:`scipy.fft.next_fast_len` of every element (once per distinct length)."""
+    vals, inv = np.unique(n, return_inverse=True)
+    return np.array([sp_fft.next_fast_len(int(v), real=real) for v in vals], dtype=np.int64)[inv.ravel()]
+
+
 def ncc_surface(tmpl: Array, search: Array) -> Array:
     """Correlation of templates (b, t, t) at every shift inside search windows (b, m, m); NaN at shifts
     whose window holds a NaN (as ``ncc._ncc_surface``).
@@ -245,8 +251,7 @@ def ncc_surface(tmpl: Array, search: Array) -> Array:
     bh, bw = box[:, 1] - box[:, 0], box[:, 3] - box[:, 2]
     kh, kw = np.maximum(bh - t + 1, 0), np.maximum(bw - t + 1, 0)
     fits = (kh > 0) & (kw > 0)
-    fh = np.array([sp_fft.next_fast_len(int(v), real=False) if f else 1 for v, f in zip(bh, fits)], dtype=np.int64)
-    fw = np.array([sp_fft.next_fast_len(int(v), real=True) if f else 1 for v, f in zip(bw, fits)], dtype=np.int64)
+    fh, fw = _fast_lengths(np.where(fits, bh, 1), False), _fast_lengths(np.where(fits, bw, 1), True)
     # direct products at most at every shift of the box; the FFT's three transforms of the padded box
     direct = DIRECT_COST * (kh * kw * t * t)
     by_fft = fits & (direct > FFT_COST * 3.0 * fh * fw * np.log2(np.maximum(fh * fw, 2)))
