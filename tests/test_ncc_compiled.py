@@ -97,3 +97,82 @@ def test_pyramid_search_equals_the_numpy_path():
             assert good.sum() > 0.3 * n
             assert np.median(np.abs(new.line[good] - pl[good] - 13.0)) < 0.2
             assert np.median(np.abs(new.sample[good] - ps[good] + 9.0)) < 0.2
+
+
+@pytest.mark.parametrize("fft", [False, True])
+def test_surface_of_windows_reaching_past_the_image_is_the_brute_force_correlation(fft, monkeypatch):
+    # issue 32, item 5: the cross products are formed over each window's valid box only (windows that
+    # reach past the image edge, as a wide search on a coarse level does); every shift is checked against
+    # np.corrcoef of its window, with boxes of different shapes in one batch
+    monkeypatch.setattr(ncc_compiled, "DIRECT_COST", 1.0 if fft else 0.0)
+    rng = np.random.default_rng(11)
+    b, t, m = 9, 7, 29
+    search = gaussian_filter(rng.normal(100.0, 40.0, (b, m, m)), (0, 1.0, 1.0))
+    tmpl = rng.normal(100.0, 40.0, (b, t, t))
+    cuts = [(0, 0, 0, 0), (5, 0, 0, 3), (0, 9, 2, 0), (3, 4, 5, 6), (12, 0, 0, 0), (0, 0, 0, 23), (0, 0, 0, 0),
+            (2, 2, 2, 2), (11, 11, 0, 0)]
+    search[3, 15, 12] = np.nan                   # an invalid pixel inside the box as well
+    whole = []
+    for i, (top, bottom, left, right) in enumerate(cuts):
+        search[i, :top] = np.nan
+        search[i, m - bottom:] = np.nan
+        search[i, :, :left] = np.nan
+        search[i, :, m - right:] = np.nan
+        own = search[i, 14:14 + t, 10:10 + t]
+        if np.isfinite(own).all():
+            tmpl[i] = own
+            whole.append(i)
+    rho = ncc_compiled.ncc_surface(tmpl, search)
+    k = m - t + 1
+    n_valid = 0
+    for i in range(b):
+        for p in range(k):
+            for q in range(k):
+                w = search[i, p:p + t, q:q + t]
+                if np.isnan(w).any():
+                    assert np.isnan(rho[i, p, q])
+                    continue
+                n_valid += 1
+                assert rho[i, p, q] == pytest.approx(np.corrcoef(w.ravel(), tmpl[i].ravel())[0, 1], abs=1e-10)
+    assert np.all(np.isnan(rho[5]))              # 6 valid columns: no 7-px template fits
+    assert 0 < n_valid < b * k * k
+    assert len(whole) >= 4
+    for i in whole:                              # the template's own position, where it is still whole
+        assert np.unravel_index(np.nanargmax(rho[i]), rho[i].shape) == (14, 10)
+
+
+def test_surface_equals_the_numpy_surface_on_random_windows():
+    # the compiled surface (valid boxes, FFT or direct by cost) against ncc._ncc_surface (direct products
+    # over the whole window, integral images by cumsum) on wide windows with invalid margins
+    from lunarmap.matching.ncc import _ncc_surface
+
+    rng = np.random.default_rng(12)
+    for m, b in ((25, 40), (61, 12), (121, 4)):
+        search = rng.normal(100.0, 30.0, (b, m, m))
+        for i in range(b):
+            a, c = rng.integers(0, m // 2, 2)
+            search[i, :a] = np.nan
+            search[i, :, m - c:] = np.nan
+        tmpl = rng.normal(100.0, 30.0, (b, 15, 15))
+        ref = _ncc_surface(tmpl, search)
+        out = ncc_compiled.ncc_surface(tmpl, search)
+        assert np.array_equal(np.isnan(out), np.isnan(ref))
+        assert np.isfinite(ref).any()
+        assert np.nanmax(np.abs(out - ref)) < 1e-12
+
+
+def test_templates_under_the_identity_are_bilinear_bit_for_bit():
+    # ncc_match and lsm_match sample their templates by affine_windows under the identity (issue 32,
+    # item 5): the very values bilinear gives at the template grid, also by window and at the edges
+    img = _image(seed=13)
+    rng = np.random.default_rng(14)
+    b, r = 40, 7
+    cl, cs = rng.uniform(-5, 245, b), rng.uniform(-5, 265, b)
+    cl[:5] = np.round(cl[:5]) + 0.5                   # on pixel centres
+    u, v = window_offsets(r)
+    ref = bilinear(img, cl[:, None, None] + u, cs[:, None, None] + v)
+    eye = np.broadcast_to(np.eye(2), (b, 2, 2))
+    for image in (img, WindowedImage(img)):
+        out = ncc_compiled.affine_windows(image, cl, cs, eye, r)
+        assert np.array_equal(out, ref, equal_nan=True)
+    assert np.isnan(ref).any() and np.isfinite(ref).any()

@@ -329,3 +329,55 @@ def test_release_free_memory_gives_freed_heap_pages_back():
     after = rss_mb()
     assert before - after > 100, (before, after)
     assert len(keep) == 6
+
+
+@pytest.mark.parametrize("cache", [True, False])
+def test_derived_levels_reduce_the_level_above_and_equal_build_pyramid_bit_for_bit(cache):
+    # issue 32, item 5: without a stored pyramid, level k is one 2 x 2 reduction of level k-1's (cached)
+    # regions; its values must be build_pyramid's (of the masked image) wherever and in whatever order
+    # regions are asked for, with the cache on or off, of the raw or of a smoothed level 0
+    rng = np.random.default_rng(21)
+    img = _image((301, 277), seed=5)
+    img[100:103, 30:90] = np.nan
+    img[7, 9] = 400.0                                       # saturated
+    masked = np.where(img >= 300.0, np.nan, img)
+    ref = build_pyramid(masked, 4)
+    set_cache_bytes(8 << 20 if cache else 0)
+    try:
+        for smooth in (0.0, 1.0):
+            pyr = WindowedImage(img, saturation=300.0, smooth=smooth).pyramid(4)
+            assert len(pyr) == len(ref) == 5
+            for k in rng.permutation(np.arange(1, 5).repeat(6)):
+                h, w = ref[k].shape
+                assert pyr[k].shape == (h, w)
+                l0, s0 = rng.integers(0, h - 1), rng.integers(0, w - 1)
+                l1, s1 = rng.integers(l0 + 1, h + 1), rng.integers(s0 + 1, w + 1)
+                assert np.array_equal(pyr[k].region(l0, l1, s0, s1), ref[k][l0:l1, s0:s1], equal_nan=True), k
+            assert pyr[3]._parent is pyr[2] and pyr[1]._parent.smooth == 0.0
+            # a pickled level (a worker's copy) still gives the same values
+            lev = pickle.loads(pickle.dumps(pyr[3]))
+            assert np.array_equal(lev.region(0, ref[3].shape[0], 0, ref[3].shape[1]), ref[3], equal_nan=True)
+    finally:
+        set_cache_bytes(64 << 20)
+
+
+def test_derived_levels_read_level_0_once_per_region():
+    # the level above's cached region serves the next level: once level 1 is held whole, no level under it
+    # reads level-0 pixels again (before: each level read and reduced its own 4^k-times larger region)
+    img = _image((256, 256), seed=6)
+    calls = []
+
+    class Counting(ArraySource):
+        def read(self, l0, l1, s0, s1):
+            calls.append((l1 - l0) * (s1 - s0))
+            return super().read(l0, l1, s0, s1)
+
+    pyr = WindowedImage(Counting(img)).pyramid(3)
+    whole = pyr[1].region(0, 128, 0, 128)
+    assert calls == [256 * 256]
+    for k in (2, 3, 2, 3):
+        f = 2 ** k
+        got = pyr[k].region(40 // f, 200 // f, 8 // f, 256 // f)
+        assert np.array_equal(got, build_pyramid(img, k)[k][40 // f:200 // f, 8 // f:256 // f])
+    assert len(calls) == 1
+    assert np.array_equal(whole, build_pyramid(img, 1)[1])

@@ -20,7 +20,8 @@ does not see: 0.09 px at 30 degrees, at the price of more noise at small converg
 each iteration samples ``g2`` and its exact derivatives by cubic convolution
 (a C1 interpolant, so the iteration does not bounce on the kinks of bilinear
 interpolation at pixel edges and the gradients belong to the fitted surface),
-forms every match's 8 x 8 normal equations with one batched matrix product and
+forms every match's 8 x 8 normal equations (with numba: accumulated in one compiled loop per
+match, without the ``(k, npx, P)`` design matrix; else one batched matrix product) and
 solves them all with one batched ``numpy.linalg.solve``. Matches leave the
 batch as soon as their shift update is below ``tol``.
 
@@ -61,6 +62,11 @@ from scipy.ndimage import gaussian_filter
 from ..errors import InvalidInputError
 from .ncc import window_offsets
 from .resample import _windowed, bicubic_with_gradient, bilinear
+
+try:  # optional: the normal equations in one compiled pass (issue 32, item 5)
+    import numba
+except ImportError:  # pragma: no cover - exercised only without numba
+    numba = None
 
 __all__ = ["LsmResult", "lsm_match"]
 
@@ -109,7 +115,8 @@ class LsmResult:
 
 def lsm_match(image1: NDArray, image2: NDArray, line1: Array, sample1: Array, line2: Array, sample2: Array,
               affine: Array, half: int = 7, max_iter: int = 20, tol: float = 1e-3,
-              max_shift: float = 3.0, presmooth: float = PRESMOOTH, epipolar: Array | None = None) -> LsmResult:
+              max_shift: float = 3.0, presmooth: float = PRESMOOTH, epipolar: Array | None = None,
+              compiled: bool | None = None) -> LsmResult:
     """Refine conjugates by least-squares matching (Eq. 14 of seeds/001).
 
     Parameters
@@ -139,6 +146,10 @@ def lsm_match(image1: NDArray, image2: NDArray, line1: Array, sample1: Array, li
         Image-2 displacement per unit of height (line, sample), e.g.
         :attr:`~lunarmap.matching.predict.Prediction.epipolar`: adds the relief terms along its
         direction (module docstring); rows of zeros get none.
+    compiled : bool, optional
+        Normal equations and residuals by the compiled kernel (:func:`_normals_py`; the same values to
+        rounding, ~1e-13 px in the matches); default: when numba is installed. ``False`` builds them with
+        numpy from the design matrix.
 
     Returns
     -------
@@ -148,6 +159,10 @@ def lsm_match(image1: NDArray, image2: NDArray, line1: Array, sample1: Array, li
         raise InvalidInputError(f"LSM needs a window half-size >= 2 (got {half})")
     if not (np.isfinite(presmooth) and presmooth >= 0.0):
         raise InvalidInputError(f"LSM presmooth must be a finite sigma >= 0 pixels (got {presmooth})")
+    if compiled is None:
+        compiled = _normals_kernel is not None
+    elif compiled and _normals_kernel is None:
+        raise InvalidInputError("compiled least-squares matching needs numba")
     image1, image2 = _prepared(image1, presmooth), _prepared(image2, presmooth)
     line1, sample1, line2, sample2 = (np.asarray(x, dtype=float).ravel() for x in (line1, sample1, line2, sample2))
     n = line1.size
@@ -166,7 +181,7 @@ def lsm_match(image1: NDArray, image2: NDArray, line1: Array, sample1: Array, li
     for b0 in range(0, n, _BATCH):
         sl = slice(b0, min(b0 + _BATCH, n))
         _lsm_batch(image1, image2, line1[sl], sample1[sl], line2[sl], sample2[sl], affine[sl], half, max_iter, tol,
-                   max_shift, presmooth, None if direction is None else direction[sl], out, sl)
+                   max_shift, presmooth, None if direction is None else direction[sl], out, sl, compiled)
     return out
 
 
@@ -251,9 +266,67 @@ def _jacobian(hdl: Array, hds: Array, g2: Array, u: Array, w: Array, direction: 
     return jac
 
 
+def _normals_py(g1: Array, g2: Array, dl: Array, ds: Array, h0: Array, h1: Array, u: Array, w: Array,
+                direction: Array, relief: bool, bad: NDArray[np.bool_], nmat: Array, rhs: Array, r: Array) -> None:
+    """Normal equations ``nmat = J^T J``, ``rhs = J^T r`` and residuals ``r`` of ``k`` matches, one match at a
+    time: its Jacobian (the columns of :func:`_jacobian`, the same products) in a ``(P, npx)`` scratch array
+    that stays in the L1 cache, then every product as one dot over the window's pixels. No ``(k, npx, P)``
+    design matrix or batched product: 5x faster than numpy for 128 matches of 15 x 15 pixels (the dots
+    are vectorised, their sums reassociated: ~1e-16 relative). Matches with ``bad[b]`` (a NaN sample) get
+    zeros, as the numpy path's zeroed rows give."""
+    k, npx = g2.shape
+    P = nmat.shape[1]
+    jac = np.empty((P, npx))
+    for b in range(k):
+        if bad[b]:
+            nmat[b] = 0.0
+            rhs[b] = 0.0
+            r[b] = 0.0
+            continue
+        gain = h1[b]
+        off = h0[b]
+        d0 = direction[b, 0]
+        d1 = direction[b, 1]
+        for i in range(npx):
+            hl = gain * dl[b, i]
+            hs = gain * ds[b, i]
+            ui = u[i]
+            wi = w[i]
+            jac[0, i] = hl
+            jac[1, i] = hl * ui
+            jac[2, i] = hl * wi
+            jac[3, i] = hs
+            jac[4, i] = hs * ui
+            jac[5, i] = hs * wi
+            jac[6, i] = 1.0
+            jac[7, i] = g2[b, i]
+            if relief:
+                je = hl * d0 + hs * d1
+                jac[8, i] = je * (ui * ui)
+                jac[9, i] = je * (ui * wi)
+                jac[10, i] = je * (wi * wi)
+            r[b, i] = g1[b, i] - (off + gain * g2[b, i])
+        for p in range(P):
+            acc = 0.0
+            for i in range(npx):
+                acc += jac[p, i] * r[b, i]
+            rhs[b, p] = acc
+            for q in range(p, P):
+                acc = 0.0
+                for i in range(npx):
+                    acc += jac[p, i] * jac[q, i]
+                nmat[b, p, q] = acc
+                nmat[b, q, p] = acc
+
+
+# reassociation lets the dots run in SIMD lanes (no NaN/inf assumptions: bad rows never reach them)
+_normals_kernel: Any = (numba.njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})(_normals_py)
+                        if numba is not None else None)
+
+
 def _lsm_batch(image1: NDArray, image2: Array, l1: Array, s1: Array, l2: Array, s2: Array, aff: Array,
                half: int, max_iter: int, tol: float, max_shift: float, presmooth: float,
-               direction: Array | None, out: LsmResult, idx: slice) -> None:
+               direction: Array | None, out: LsmResult, idx: slice, compiled: bool = False) -> None:
     u, w = window_offsets(half)
     u = u.ravel()
     w = w.ravel()
@@ -262,7 +335,13 @@ def _lsm_batch(image1: NDArray, image2: Array, l1: Array, s1: Array, l2: Array, 
     # Jacobian and Hessian formed once, image 2 resampled without gradients) was tried: each
     # iteration cost half as much, but with noisy templates it converged only linearly (9
     # iterations on average instead of 5.3, a fifth of the matches unconverged after 20).
-    g1 = bilinear(image1, l1[:, None] + u, s1[:, None] + w)  # (b, npx)
+    if compiled:
+        # the template by the NCC search's compiled kernel under the identity: bilinear's values (issue 32)
+        from .ncc_compiled import affine_windows
+
+        g1 = affine_windows(image1, l1, s1, np.broadcast_to(np.eye(2), (b, 2, 2)), half).reshape(b, -1)
+    else:
+        g1 = bilinear(image1, l1[:, None] + u, s1[:, None] + w)  # (b, npx)
     P = 8 if direction is None else 11
     # relief terms of matches without an epipolar direction have zero columns: held at 0 by a unit diagonal
     held = np.zeros(b) if direction is None else 3.0 * ~np.any(direction != 0.0, axis=1)
@@ -291,16 +370,24 @@ def _lsm_batch(image1: NDArray, image2: Array, l1: Array, s1: Array, l2: Array, 
         g2, dl, ds = bicubic_with_gradient(image2, gl2, gs2)  # (k, npx) each
         bad = ~np.all(np.isfinite(g2), axis=1)
         h0, h1 = pa[:, 6:7], pa[:, 7:8]
-        r = g1[a] - (h0 + h1 * g2)
-        jac = _jacobian(h1 * dl, h1 * ds, g2, u, w, None if direction is None else direction[a])  # (k, npx, P)
-        jac[bad] = 0.0
-        r[bad] = 0.0
-        jt = jac.transpose(0, 2, 1)
-        nmat = jt @ jac  # batched GEMM: much faster than einsum for (k, 8, npx) x (k, npx, 8)
+        if compiled:
+            nmat = np.empty((a.size, P, P))
+            rhs = np.empty((a.size, P))
+            r = np.empty(g2.shape)
+            _normals_kernel(g1[a], g2, dl, ds, pa[:, 6], pa[:, 7], u, w,
+                            direction[a] if direction is not None else np.zeros((a.size, 2)), direction is not None,
+                            bad, nmat, rhs, r)
+        else:
+            r = g1[a] - (h0 + h1 * g2)
+            jac = _jacobian(h1 * dl, h1 * ds, g2, u, w, None if direction is None else direction[a])  # (k, npx, P)
+            jac[bad] = 0.0
+            r[bad] = 0.0
+            jt = jac.transpose(0, 2, 1)
+            nmat = jt @ jac  # batched GEMM: much faster than einsum for (k, 8, npx) x (k, npx, 8)
+            rhs = (jt @ r[..., None])[..., 0]
         if direction is not None and held[a].any():
             hz = held[a] > 0
             nmat[hz, 8:, 8:] += np.eye(3)
-        rhs = (jt @ r[..., None])[..., 0]
         # Guard singular systems (flat windows): they are dropped below.
         cond_ok = np.linalg.det(nmat) > 0
         nmat[~cond_ok] = np.eye(P)
@@ -319,7 +406,10 @@ def _lsm_batch(image1: NDArray, image2: Array, l1: Array, s1: Array, l2: Array, 
             d = np.flatnonzero(done)
             k = a[d]
             with np.errstate(invalid="ignore"):
-                cov = _covariance(jac[d], r[d], nmat[d], 2 * half + 1, presmooth, held[k])
+                # the compiled path keeps no design matrix: the converged matches' rows formed again
+                jd = (_jacobian(h1[d] * dl[d], h1[d] * ds[d], g2[d], u, w, None if direction is None else direction[k])
+                      if compiled else jac[d])
+                cov = _covariance(jd, r[d], nmat[d], 2 * half + 1, presmooth, held[k])
                 sig_l[k] = np.sqrt(cov[:, 0, 0])
                 sig_s[k] = np.sqrt(cov[:, 3, 3])
                 c1 = g1[k] - g1[k].mean(axis=1, keepdims=True)

@@ -208,12 +208,15 @@ def ncc_match(pyr1: list[Array], pyr2: list[Array], line1: Array, sample1: Array
             for b0 in range(0, sel.size, batch):
                 act = sel[b0:b0 + batch]
                 a = affine[act]
-                t = bilinear(pyr1[level], line1[act, None, None] / f + tl, sample1[act, None, None] / f + ts)
                 if compiled:
+                    # the templates by the same kernel, under the identity (the same values as bilinear's)
+                    t = ncc_compiled.affine_windows(pyr1[level], line1[act] / f, sample1[act] / f,
+                                                    np.broadcast_to(np.eye(2), (act.size, 2, 2)), half)
                     # issue 32: the same windows and surface, compiled (no m x m coordinate temporaries)
                     s = ncc_compiled.affine_windows(pyr2[level], cl[act] / f, cs[act] / f, a, half + int(r))
                     rho = ncc_compiled.ncc_surface(t, s)
                 else:
+                    t = bilinear(pyr1[level], line1[act, None, None] / f + tl, sample1[act, None, None] / f + ts)
                     # image-2 positions of the search window, laid out in image-1 geometry
                     gl = cl[act, None, None] / f + a[:, 0, 0, None, None] * ol + a[:, 0, 1, None, None] * os_
                     gs = cs[act, None, None] / f + a[:, 1, 0, None, None] * ol + a[:, 1, 1, None, None] * os_

@@ -11,7 +11,10 @@ direct cross products and integral images by ``cumsum``). Here
 * :func:`ncc_surface` forms the window sums by integral images per point (values offset by the window's
   mean, which leaves the correlation unchanged and the variance better conditioned) and the cross
   products either directly, only at shifts whose window is wholly valid (the others are NaN anyway),
-  or by FFT (:func:`scipy.fft.rfft2`) for large windows, where it is cheaper.
+  or by FFT (:func:`scipy.fft.rfft2`) for large windows, where it is cheaper; both only over the bounding
+  box of the window's valid pixels (issue 32, item 5: a wide search on a coarse level of the example
+  reaches past the image, about half of every such window is NaN, and the FFT of the whole padded window
+  was the largest single cost of matching a pair).
 
 Results equal those of the numpy path to rounding (~1e-12 in the correlation).
 """
@@ -66,9 +69,11 @@ def _affine_bilinear_py(img: Array, cl: Array, cs: Array, a: Array, r: int, y_of
                                 + fy * ((1.0 - fx) * img[i + 1, j] + fx * img[i + 1, j + 1]))
 
 
-def _surface_py(tm: Array, tn: Array, search: Array, cross: Array, have_cross: bool, rho: Array) -> None:
+def _surface_py(tm: Array, tn: Array, search: Array, cross: Array, have_cross: NDArray[np.bool_],
+                rho: Array) -> None:
     """Correlation surface of mean-free templates ``tm`` (b, t, t) (norms ``tn``) in windows ``search``
-    (b, m, m, NaN invalid); ``cross`` the cross products when ``have_cross`` (else computed here)."""
+    (b, m, m, NaN invalid); ``cross[b]`` the cross products of the windows with ``have_cross[b]`` (the others'
+    are computed here, directly)."""
     bn, m, _ = search.shape
     t = tm.shape[1]
     k = m - t + 1
@@ -111,7 +116,7 @@ def _surface_py(tm: Array, tn: Array, search: Array, cross: Array, have_cross: b
                 a1 = s1[p + t, q + t] - s1[p, q + t] - s1[p + t, q] + s1[p, q]
                 a2 = s2[p + t, q + t] - s2[p, q + t] - s2[p + t, q] + s2[p, q]
                 var = max(a2 - a1 * a1 / n, 0.0)
-                if have_cross:
+                if have_cross[b]:
                     x = cross[b, p, q]
                 else:
                     x = 0.0
@@ -123,11 +128,66 @@ def _surface_py(tm: Array, tn: Array, search: Array, cross: Array, have_cross: b
                 rho[b, p, q] = val if np.isfinite(val) else np.nan
 
 
+def _boxes_py(search: Array, box: NDArray[np.int64], mean: Array) -> None:
+    """Per window ``b``: the bounding box ``box[b] = (l0, l1, s0, s1)`` of its valid (finite) pixels (all 0
+    when there are none) and their mean ``mean[b]`` (0 when none)."""
+    bn, m, _ = search.shape
+    for b in range(bn):
+        l0 = m
+        l1 = -1
+        s0 = m
+        s1 = -1
+        tot = 0.0
+        nv = 0
+        for i in range(m):
+            for j in range(m):
+                g = search[b, i, j]
+                if np.isfinite(g):
+                    tot += g
+                    nv += 1
+                    l0 = min(l0, i)
+                    l1 = max(l1, i)
+                    s0 = min(s0, j)
+                    s1 = max(s1, j)
+        if nv:
+            box[b, 0], box[b, 1], box[b, 2], box[b, 3] = l0, l1 + 1, s0, s1 + 1
+            mean[b] = tot / nv
+        else:
+            box[b, 0] = box[b, 1] = box[b, 2] = box[b, 3] = 0
+            mean[b] = 0.0
+
+
+def _crop_py(search: Array, rows: NDArray[np.intp], box: NDArray[np.int64], mean: Array, out: Array) -> None:
+    """``out[g, :h, :w]`` = window ``rows[g]``'s valid box less its mean, invalid pixels 0 (the rest of
+    ``out``, zero padding, is left as it is)."""
+    for g in range(rows.size):
+        b = rows[g]
+        l0, l1, s0, s1 = box[b, 0], box[b, 1], box[b, 2], box[b, 3]
+        c = mean[b]
+        for i in range(l1 - l0):
+            for j in range(s1 - s0):
+                v = search[b, l0 + i, s0 + j]
+                out[g, i, j] = v - c if np.isfinite(v) else 0.0
+
+
+def _place_py(corr: Array, rows: NDArray[np.intp], box: NDArray[np.int64], t: int, cross: Array) -> None:
+    """``cross[rows[g]]`` at the shifts of its valid box from the box's correlation ``corr[g]``."""
+    for g in range(rows.size):
+        b = rows[g]
+        l0, l1, s0, s1 = box[b, 0], box[b, 1], box[b, 2], box[b, 3]
+        for i in range(l1 - l0 - t + 1):
+            for j in range(s1 - s0 - t + 1):
+                cross[b, l0 + i, s0 + j] = corr[g, i, j]
+
+
 if numba is not None:
     _affine_kernel: Any = numba.njit(cache=True, nogil=True)(_affine_bilinear_py)
     _surface_kernel: Any = numba.njit(cache=True, nogil=True)(_surface_py)
+    _boxes_kernel: Any = numba.njit(cache=True, nogil=True)(_boxes_py)
+    _crop_kernel: Any = numba.njit(cache=True, nogil=True)(_crop_py)
+    _place_kernel: Any = numba.njit(cache=True, nogil=True)(_place_py)
 else:  # pragma: no cover - without numba
-    _affine_kernel = _surface_kernel = None
+    _affine_kernel = _surface_kernel = _boxes_kernel = _crop_kernel = _place_kernel = None
 
 
 def affine_windows(image: Any, cl: Array, cs: Array, a: Array, r: int) -> Array:
@@ -161,34 +221,53 @@ def affine_windows(image: Any, cl: Array, cs: Array, a: Array, r: int) -> Array:
     return out
 
 
+def _fast_lengths(n: NDArray[np.int64], real: bool) -> NDArray[np.int64]:
+    """:func:`scipy.fft.next_fast_len` of every element (once per distinct length)."""
+    vals, inv = np.unique(n, return_inverse=True)
+    return np.array([sp_fft.next_fast_len(int(v), real=real) for v in vals], dtype=np.int64)[inv.ravel()]
+
+
 def ncc_surface(tmpl: Array, search: Array) -> Array:
     """Correlation of templates (b, t, t) at every shift inside search windows (b, m, m); NaN at shifts
-    whose window holds a NaN (as ``ncc._ncc_surface``)."""
+    whose window holds a NaN (as ``ncc._ncc_surface``).
+
+    Only shifts whose template window is wholly valid have a value, and they all lie in the bounding box
+    of the window's valid pixels: the cross products are formed over that box alone, directly or (for
+    large boxes, where it is cheaper) by FFT of the box, windows with boxes of the same FFT shape in
+    one batch. Search windows that reach past the image edge (on the example's coarse levels about
+    half of a wide search window) then cost only their valid part.
+    """
     bn, m, _ = search.shape
     t = tmpl.shape[-1]
     k = m - t + 1
     tm = tmpl - tmpl.mean(axis=(1, 2), keepdims=True)
     tn = np.sqrt(np.sum(tm * tm, axis=(1, 2)))
     tm = np.ascontiguousarray(tm)
-    search = np.ascontiguousarray(search)
+    search = np.ascontiguousarray(search, dtype=float)
     rho = np.empty((bn, k, k))
-    valid = np.isfinite(search)
-    size = sp_fft.next_fast_len(m, real=True)
-    # direct products only at wholly valid shifts: their share is at most the valid pixels' share
-    direct = DIRECT_COST * float(valid.mean()) * k * k * t * t
-    if direct > FFT_COST * 3.0 * size * size * np.log2(size * size):
+    box = np.zeros((bn, 4), dtype=np.int64)
+    mean = np.zeros(bn)
+    _boxes_kernel(search, box, mean)
+    bh, bw = box[:, 1] - box[:, 0], box[:, 3] - box[:, 2]
+    kh, kw = np.maximum(bh - t + 1, 0), np.maximum(bw - t + 1, 0)
+    fits = (kh > 0) & (kw > 0)
+    fh, fw = _fast_lengths(np.where(fits, bh, 1), False), _fast_lengths(np.where(fits, bw, 1), True)
+    # direct products at most at every shift of the box; the FFT's three transforms of the padded box
+    direct = DIRECT_COST * (kh * kw * t * t)
+    by_fft = fits & (direct > FFT_COST * 3.0 * fh * fw * np.log2(np.maximum(fh * fw, 2)))
+    cross = np.zeros((bn, k, k)) if by_fft.any() else np.empty((1, 1, 1))
+    for h, w in sorted(set(zip(fh[by_fft].tolist(), fw[by_fft].tolist()))):
+        rows = np.flatnonzero(by_fft & (fh == h) & (fw == w))
         # a constant offset of the valid pixels leaves a mean-free template's cross products unchanged
         # wherever the window is wholly valid (the only shifts kept): the FFT then rounds less
-        nv = np.maximum(valid.sum(axis=(1, 2)), 1)
-        mean = np.where(valid, search, 0.0).sum(axis=(1, 2)) / nv
-        s0 = np.where(valid, search - mean[:, None, None], 0.0)
-        f = sp_fft.rfft2(s0, s=(size, size), axes=(1, 2))
+        s0 = np.zeros((rows.size, h, w))
+        _crop_kernel(search, rows, box, mean, s0)
+        f = sp_fft.rfft2(s0, axes=(1, 2))
         # the template's transform in two passes: its t rows first, then the padded columns (a third of
         # the work of one 2-D transform of the zero-padded template)
-        g = sp_fft.fft(sp_fft.rfft(tm, n=size, axis=2), n=size, axis=1)
+        g = sp_fft.fft(sp_fft.rfft(tm[rows], n=w, axis=2), n=h, axis=1)
         f *= np.conj(g)
-        cross = np.ascontiguousarray(sp_fft.irfft2(f, s=(size, size), axes=(1, 2))[:, :k, :k])
-        _surface_kernel(tm, tn, search, cross, True, rho)
-    else:
-        _surface_kernel(tm, tn, search, np.empty((1, 1, 1)), False, rho)
+        corr = sp_fft.irfft2(f, s=(h, w), axes=(1, 2))
+        _place_kernel(corr, rows, box, t, cross)
+    _surface_kernel(tm, tn, search, cross, by_fft, rho)
     return rho

@@ -10,7 +10,8 @@ Invalid and saturated pixels become NaN as :func:`~lunarmap.matching.pairs.as_ar
 least-squares matching's Gaussian pre-smoothing (:meth:`WindowedImage.smoothed`) is computed on
 each region with an apron of the filter's radius, so the smoothed values are those of the
 smoothed whole image. Pyramid levels come from a stored :class:`~lunarmap.io.pyramid.Pyramid`
-or, without one, are block means of level-0 regions (the same values).
+or, without one, are block means of the cached regions of the level above (the same values as
+``build_pyramid``'s; issue 32, item 5: not each level's regions reduced again from level 0).
 
 Regions are kept in one least-recently-used cache per process, bounded in bytes
 (:data:`CACHE_BYTES`, settable with :func:`set_cache_bytes`): a worker that matches many pairs of
@@ -128,7 +129,8 @@ class WindowedImage:
     """
 
     def __init__(self, source: Any, saturation: float | None = None, smooth: float = 0.0,
-                 pyramid: Pyramid | None = None, *, _base: "WindowedImage | None" = None, _level: int = 0) -> None:
+                 pyramid: Pyramid | None = None, *, _base: "WindowedImage | None" = None, _level: int = 0,
+                 _parent: "WindowedImage | None" = None) -> None:
         self.source: WindowSource = open_source(source)
         self.shape = cast("tuple[int, int]", tuple(int(v) for v in self.source.shape))    # 2-D sources
         self.name = getattr(self.source, "name", "image")
@@ -139,6 +141,8 @@ class WindowedImage:
         self.stored = pyramid
         self._base = _base                # derived level: block means of the base image's regions
         self._level = int(_level)
+        # derived level: the unsmoothed level above it, whose cached regions it reduces by one step
+        self._parent = _parent
         self._owner = next(_OWNER)
         self.ndim = 2
 
@@ -190,7 +194,16 @@ class WindowedImage:
         return a
 
     def _derived(self, l0: int, l1: int, s0: int, s1: int) -> Array:
-        """Level-k pixels as block means of the base image's aligned ``2^k`` blocks (build_pyramid's values)."""
+        """Level-k pixels as block means of the base image's aligned ``2^k`` blocks (build_pyramid's values).
+
+        With the level above (``_parent``): one 2 x 2 reduction of its region, read through the region
+        cache, so a region of level k-1 that the search has just read is not read and reduced again
+        from level 0 (k reductions of ``4^k`` times the pixels). The same arithmetic either way: block
+        means of block means, in the same order.
+        """
+        if self._parent is not None:
+            a = self._parent.region(2 * l0, 2 * l1, 2 * s0, 2 * s1)
+            return 0.25 * (a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2])
         f = 2 ** self._level
         a = self._base._raw(l0 * f, l1 * f, s0 * f, s1 * f)  # type: ignore[union-attr]
         for _ in range(self._level):
@@ -202,7 +215,8 @@ class WindowedImage:
         """The same image smoothed by a Gaussian of ``sigma`` pixels (NaN-aware, as least-squares matching's)."""
         if sigma == self.smooth:
             return self
-        return WindowedImage(self.source, self.saturation, sigma, self.stored, _base=self._base, _level=self._level)
+        return WindowedImage(self.source, self.saturation, sigma, self.stored, _base=self._base, _level=self._level,
+                             _parent=self._parent)
 
     def pyramid(self, levels: int) -> list["WindowedImage"]:
         """``[level 0 (this image), level 1, ...]``, at most ``levels`` reductions (``build_pyramid``'s rule)."""
@@ -210,12 +224,17 @@ class WindowedImage:
             raise InvalidInputError("pyramid() is asked of level 0")
         out = [self]
         shapes = pyramid_shapes(self.shape, levels)
+        # each derived level reduces the raw (unsmoothed) level above it
+        above: WindowedImage | None = self if self.smooth == 0.0 else self.smoothed(0.0)
         for k, (h, w) in enumerate(shapes, start=1):
             if self.stored is not None and k <= self.stored.levels:
                 lev = WindowedImage(self.stored.level(k), None, 0.0, _level=k)
             else:
-                lev = WindowedImage(_Shape((h, w), f"{self.name} level {k}"), None, 0.0, _base=self, _level=k)
+                lev = WindowedImage(_Shape((h, w), f"{self.name} level {k}"), None, 0.0, _base=self, _level=k,
+                                    _parent=above)
             out.append(lev)
+            # a stored level's pixels are as stored (perhaps rounded): levels under it reduce level 0
+            above = lev if lev._parent is not None else None
         return out
 
     def __del__(self) -> None:
@@ -227,11 +246,11 @@ class WindowedImage:
     # pickling: the source and settings, not the cache
     def __getstate__(self) -> dict[str, Any]:
         return {"source": self.source, "saturation": self.saturation, "smooth": self.smooth, "stored": self.stored,
-                "base": self._base, "level": self._level}
+                "base": self._base, "level": self._level, "parent": self._parent}
 
     def __setstate__(self, st: dict[str, Any]) -> None:
         self.__init__(st["source"], st["saturation"], st["smooth"], st["stored"], _base=st["base"],  # type: ignore[misc]
-                      _level=st["level"])
+                      _level=st["level"], _parent=st.get("parent"))
 
     def __repr__(self) -> str:
         extra = f", level {self._level}" if self._level else ""
