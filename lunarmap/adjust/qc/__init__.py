@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 
 from ...errors import (
     AdjustmentError,
+    QualityControlError,
     QualityControlInputError,
     QualityControlWarning,
     VarianceComponentError,
@@ -237,17 +238,14 @@ def auto_robust_decision(ledger: Ledger, baarda: dict | None = None, budget: Bud
         rounds = min(rounds, max(int(budget.max_rounds) - budget.rounds, 0))
     act = ledger.active
     out: dict = {"limit": limit, "fraction": float(fraction), "active": int(act.sum()), "rounds_available": rounds}
-    from ...errors import QualityControlError
-
     try:
         tests = w_tests(ledger, str(kw.get("sigma0", "apriori")), float(kw.get("min_redundancy", 0.02)), limit)
     except QualityControlError as exc:
         out.update(run=True, failing=-1, failing_fraction=float("nan"), max_w=float("nan"),
                    reason=f"no precision at the first adjustment ({str(exc)[:120]})")
         return out
-    w = np.abs(tests["image"])
-    with np.errstate(invalid="ignore"):
-        w_obs = np.where(np.all(np.isnan(w), axis=1), 0.0, np.nanmax(np.where(np.isnan(w), -np.inf, w), axis=1))
+    # an observation's largest |w| over its coordinates (0 where none was tested: NaN)
+    w_obs = np.nan_to_num(np.abs(tests["image"]), nan=0.0).max(axis=1)
     failing = int(np.sum(act & (w_obs > limit)))
     frac = failing / max(int(act.sum()), 1)
     out.update(failing=failing, failing_fraction=float(frac), max_w=float(np.max(w_obs[act])) if act.any() else 0.0)

@@ -482,13 +482,18 @@ class Ledger:
         self._touched.update(int(j) for j in back)
         return back
 
+    def term_kind(self, term: int) -> str:
+        """A term's observation kind in decisions: ``"terrain"`` for one that observes points (reference DTM
+        heights), ``"navigation"`` otherwise."""
+        return "terrain" if getattr(self.terms[term], "uses_points", False) else "navigation"
+
     def downweight_term(self, term: int, row: int, factor: float, step: str, rnd: int, value=np.nan,
                         redundancy=np.nan, image=-1, component=-1, group="navigation") -> None:
         """``P_new = P_old / factor`` for one row of a term (navigation observation; a reference DTM height,
         recorded as kind ``"terrain"`` with its point)."""
         self.weights.term_sigma[term][row] *= np.sqrt(factor)
-        t = self.terms[term]
-        kind, point = ("terrain", int(t.point_index[row])) if getattr(t, "uses_points", False) else ("navigation", -1)
+        kind = self.term_kind(term)
+        point = int(self.terms[term].point_index[row]) if kind == "terrain" else -1
         self.decisions.append(Decision(step, rnd, kind, int(row), int(image), point, int(component), float(value),
                                        float(redundancy), "downweighted", group))
 

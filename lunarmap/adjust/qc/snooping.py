@@ -719,8 +719,7 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
                     ledger.weights.restore_control(key[1])
                 else:
                     ledger.weights.restore_term(key[1], key[2])
-                kind = ("control" if key[0] == "control" else
-                        "terrain" if getattr(ledger.terms[key[1]], "uses_points", False) else "navigation")
+                kind = "control" if key[0] == "control" else ledger.term_kind(key[1])
                 ledger.decisions.append(Decision("baarda", rnd, kind, key[-1], action="reinstated"))
             continue
         cands.sort(key=lambda c: -c[0])
