@@ -109,6 +109,8 @@ def test_the_crater_row_is_a_terrain_observation_of_its_dtm_and_down_weighted(bl
     _, _, h_adj, _ = point_height(qc.result.points[j], R_MOON)
     _, _, h_true, _ = point_height(sb.true_points[j], R_MOON)
     assert abs(float(h_adj[0] - h_true[0])) < 0.2 * CRATER_M
+    print("crater row: first |w|", abs(first.value), "round", first.round, "final status", st["status"].values[k],
+          st["reason"].values[k], "; point height error", float(h_adj[0] - h_true[0]), "m")
 
 
 def test_a_dtm_row_of_a_point_out_of_the_adjustment_is_out_with_it(block, crater_run):
