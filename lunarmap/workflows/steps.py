@@ -763,7 +763,8 @@ def _terrain_outputs(block: Any, res: Any, qc_out: Any, est: Any,
         r = np.asarray(term.residuals_m(points), float)
         factor = np.ones(r.size) if weights is None else np.asarray(weights.term_sigma[t], float)
         down = np.zeros(r.size, bool) if weights is None else np.asarray(weights.term_downweighted(t), bool)
-        out_pt = np.zeros(r.size, bool) if weights is None else np.asarray(weights.dropped_points, bool)[term.point_index]
+        # out with its point: the rule the QC status table uses (Weights.term_rows_out)
+        out_pt = np.zeros(r.size, bool) if weights is None else weights.term_rows_out(term)
         status = np.where(~np.isfinite(r), "lost", np.where(out_pt, "point out", np.where(down, "down-weighted", "in")))
         scale, scale_sd, estimated = 1.0, float("nan"), False
         if vc is not None and term.name in vc.names:
