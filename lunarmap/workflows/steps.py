@@ -23,11 +23,12 @@ import xarray as xr
 from ..blas import single_threaded_blas
 from ..camera.geodesy import MOON_GEOGRAPHIC_CRS
 from ..errors import LunarmapError, WorkflowError
+from .outputs import Exported, Outputs, export_image, export_rpcs
 from .store import Store
 
 _log = logging.getLogger(__name__)
 
-__all__ = ["Done", "ImageJob", "ImageDone", "MatchJob", "image_steps", "isd_step", "rpc_step", "pyramid_step",
+__all__ = ["Done", "ImageJob", "ImageDone", "BatchDone", "MatchJob", "image_steps", "isd_step", "rpc_step", "pyramid_step",
            "detect_step", "footprint_step", "match_batch", "match_step", "tiepoints_step", "adjust_step",
            "kernels_step", "kernel_sets", "adjusted_rpc_batch", "read_pixels", "provenance"]
 
@@ -253,10 +254,20 @@ def _tiles_by_row(shape: tuple[int, int], tile: int, halo: int) -> list[list[tup
     return list(rows.values())
 
 
+@dataclass
+class BatchDone:
+    """Records of a batch of steps and the manifest rows of the output files the batch wrote."""
+
+    records: list[Done]
+    exported: Exported | None = None
+
+
 def adjusted_rpc_batch(store: Store, jobs: Sequence[tuple[str, str]], adjusted: Done,
-                       height_range: tuple[float, float]) -> list[Done]:
-    """:func:`adjusted_rpc_step` of several images ``(key, name)`` in one task."""
-    return [adjusted_rpc_step(store, k, n, adjusted, height_range) for k, n in jobs]
+                       height_range: tuple[float, float], outputs: Outputs | None = None) -> BatchDone:
+    """:func:`adjusted_rpc_step` of several images ``(key, name)`` in one task; with ``outputs``, their RFMs
+    are also written to ``outputs/rpc_adjusted`` (netCDF and ``_RPC.TXT``) by this task."""
+    records = [adjusted_rpc_step(store, k, n, adjusted, height_range) for k, n in jobs]
+    return BatchDone(records, export_rpcs(outputs, records, "rpc_adjusted") if outputs is not None else None)
 
 
 @_one_blas_thread
@@ -438,10 +449,12 @@ class ImageJob:
 
 @dataclass
 class ImageDone:
-    """The per-image steps' records and the image's footprints."""
+    """The per-image steps' records, the image's footprints and the manifest rows of the output files its
+    task wrote (or found fresh) in the run's ``outputs`` folder."""
 
     records: list[Done]
     footprints: list[Any] | None
+    exported: Exported | None = None
 
     def get(self, step: str) -> Done | None:
         return next((d for d in self.records if d.step == step), None)
@@ -449,9 +462,11 @@ class ImageDone:
 
 def image_steps(store: Store, job: ImageJob, metakernel: str, heights: tuple[float, ...],
                 rpc_height_range: tuple[float, float] | None, detect: Any, pyramid_levels: int,
-                saturation: float | None) -> ImageDone:
+                saturation: float | None, outputs: Outputs | None = None) -> ImageDone:
     """One task per image: its ISD, footprints, RFM, pyramid and interest points, each stored under its own
-    key (a rerun or a resumed run computes only the missing ones)."""
+    key (a rerun or a resumed run computes only the missing ones); with ``outputs``, also the image's files
+    of the run's outputs folder (its ISD and RFM: :func:`lunarmap.workflows.outputs.export_image`), on the
+    worker that ran it, not after the graph."""
     isd = isd_step(store, job.isd_key, job.name, job.label, metakernel)
     stored = all(store.has(*k) for k in (("footprint", job.footprint_key, "npz"), ("pyramid", job.pyramid_key, "nc"),
                                          ("detect", job.detect_key, "npz")))
@@ -466,7 +481,7 @@ def image_steps(store: Store, job: ImageJob, metakernel: str, heights: tuple[flo
         records.append(rpc_step(store, job.rpc_key, isd, rpc_height_range))
     records.append(pyramid_step(store, job.pyramid_key, job.name, job.pixels, pyramid_levels, saturation, job.digest))
     records.append(detect_step(store, job.detect_key, job.name, job.pixels, detect, saturation))
-    return ImageDone(records, feet)
+    return ImageDone(records, feet, export_image(outputs, records) if outputs is not None else None)
 
 
 @dataclass(frozen=True)
