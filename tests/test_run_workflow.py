@@ -239,7 +239,7 @@ def _export_files(folder: Path) -> dict[str, bytes]:
             for p in sorted((out / sub).iterdir())}
 
 
-def test_local_cluster_gives_identical_results(example, serial, monkeypatch):
+def test_local_cluster_gives_identical_results(example, serial, monkeypatch, tmp_path):
     import lunarmap.workflows.outputs as outputs_mod
 
     def not_here(*args, **kwargs):
@@ -254,14 +254,16 @@ def test_local_cluster_gives_identical_results(example, serial, monkeypatch):
     mine, theirs = _export_files(res.folder), _export_files(serial.folder)
     assert len(theirs) == 5 * len(NAMES) and mine.keys() == theirs.keys()
     assert [k for k in mine if mine[k] != theirs[k]] == []
-    # each text form is its stored RFM (netCDF), read back by the RPC text reader
-    from lunarmap.rpc import read_netcdf, read_rpc_txt
+    # each text form (written by its task from the model it had just fitted) is the one of its netCDF file read
+    # back, byte for byte, and reads back to that model
+    from lunarmap.rpc import read_netcdf, read_rpc_txt, write_rpc_txt
 
     for name in NAMES:
         for sub in ("rpc", "rpc_adjusted"):
-            txt = read_rpc_txt(res.outputs[sub] / f"{name}_RPC.TXT")
             nc = read_netcdf(res.outputs[sub] / f"{name}.nc")
-            np.testing.assert_array_equal(txt.coefficients, nc.coefficients)
+            again = write_rpc_txt(nc, tmp_path / f"{sub}_{name}_RPC.TXT")
+            assert again.read_bytes() == mine[f"{sub}/{name}_RPC.TXT"], (sub, name)
+            np.testing.assert_array_equal(read_rpc_txt(again).coefficients, nc.coefficients)
     a, b = _points(res), _points(serial)
     assert np.max(np.abs(a - b) / np.abs(b).max()) <= 1e-9
     assert res.summary["sigma0"] == pytest.approx(serial.summary["sigma0"], rel=1e-9)

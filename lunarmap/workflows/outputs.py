@@ -108,13 +108,41 @@ class Outputs:
         except OSError:
             fresh = False
         if not fresh:
-            from ..rpc import read_netcdf, write_rpc_txt
+            from ..rpc import write_rpc_txt
 
             dst.parent.mkdir(parents=True, exist_ok=True)
-            write_rpc_txt(read_netcdf(src), dst)
+            write_rpc_txt(_stored_rfm(src), dst)
         # a derived file's own digest (it never equals the entry's): a damaged one is written again
         done.rows[rel] = f"{src}\n{file_digest(dst)}"
         return dst
+
+
+# RFMs this process just wrote to the store, by (path, size, modification time): their text forms are written
+# from them rather than by reading each netCDF back (a guarded read forks a probe first: most of a 48-image
+# run's export, profiled); one use each, so the dict stays small
+_JUST_WRITTEN: dict[tuple[str, int, int], Any] = {}
+
+
+def _stamp(path: str | Path) -> tuple[str, int, int]:
+    st = Path(path).stat()
+    return str(path), st.st_size, st.st_mtime_ns
+
+
+def remember_rfm(path: str | Path, model: Any) -> None:
+    """Note the model a step just stored at ``path`` (netCDF: it reads back to the same model, bit for bit)."""
+    while len(_JUST_WRITTEN) >= 256:
+        _JUST_WRITTEN.pop(next(iter(_JUST_WRITTEN)))
+    _JUST_WRITTEN[_stamp(path)] = model
+
+
+def _stored_rfm(path: str | Path) -> Any:
+    """The RFM stored at ``path``: the one this process just wrote there, else read from the file."""
+    model = _JUST_WRITTEN.pop(_stamp(path), None)
+    if model is not None:
+        return model
+    from ..rpc import read_netcdf
+
+    return read_netcdf(path)
 
 
 def image_files(name: str, rpc: bool) -> list[str]:

@@ -23,7 +23,7 @@ import xarray as xr
 from ..blas import single_threaded_blas
 from ..camera.geodesy import MOON_GEOGRAPHIC_CRS
 from ..errors import LunarmapError, WorkflowError
-from .outputs import Exported, Outputs, export_image, export_rpcs
+from .outputs import Exported, Outputs, export_image, export_rpcs, remember_rfm
 from .store import Store
 
 _log = logging.getLogger(__name__)
@@ -234,6 +234,7 @@ def rpc_step(store: Store, key: str, isd: Done, height_range: tuple[float, float
     except LunarmapError as err:
         raise _fail("rpc", isd.item, err) from None
     path = store.write("rpc", key, "nc", lambda tmp: write_netcdf(fit.model, tmp))
+    remember_rfm(path, fit.model)
     assert fit.check is not None        # fit_rpc checks by default
     return Done("rpc", key, isd.item, str(path), True, time.perf_counter() - t,
                 note=f"check RMS {fit.check.rms:.2e} px")
@@ -258,6 +259,7 @@ def adjusted_rpc_step(store: Store, key: str, name: str, adjusted: Done, height_
     except LunarmapError as err:
         raise _fail("rpc_adjusted", name, err) from None
     path = store.write("rpc_adjusted", key, "nc", lambda tmp: write_netcdf(fit.model, tmp))
+    remember_rfm(path, fit.model)
     assert fit.check is not None        # fit_rpc checks by default
     return Done("rpc_adjusted", key, name, str(path), True, time.perf_counter() - t,
                 note=f"check RMS {fit.check.rms:.2e} px")
