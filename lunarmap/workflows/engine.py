@@ -578,6 +578,12 @@ def _compute(graph: _Graph, scheduler: Any, progress: _Progress) -> dict[str, An
     def post(key: Any, result: Any, dsk: Any, state: Any, worker_id: Any) -> None:
         progress.finished(key if isinstance(key, str) else str(key), result)
 
+    if scheduler in ("sync", "synchronous"):
+        # the function itself: given the name, dask imports distributed to look for a client first (a second
+        # of a rerun that computes nothing)
+        from dask.local import get_sync
+
+        scheduler = get_sync
     with Callback(posttask=post):
         values = dask.compute(*delayed, scheduler=scheduler)
     return dict(zip(keys, values))
