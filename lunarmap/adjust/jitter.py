@@ -25,7 +25,8 @@ Nothing here calls SPICE.
 
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -34,7 +35,29 @@ from numpy.typing import NDArray
 from ..camera.corrections import LineScanCorrections
 from ..errors import AdjustmentInputError
 
-__all__ = ["JitterSmoothness"]
+__all__ = ["JitterSmoothness", "JitterSpec"]
+
+
+@dataclass(frozen=True)
+class JitterSpec:
+    """Jitter splines of a block's line-scan images (:func:`~lunarmap.adjust.build_block` ``jitter=``).
+
+    Attributes
+    ----------
+    knot_lines : float
+        Knot spacing, image lines (>= 1).
+    sigma : float
+        Smoothness prior: sigma of a second difference of knot coefficients, radians.
+    zero_sigma : float or None
+        Weak zero prior of the spline parameters, radians (None: none).
+    images : sequence of str or None
+        The images that get a spline (None: every line-scan image).
+    """
+
+    knot_lines: float
+    sigma: float
+    zero_sigma: float | None = None
+    images: Sequence[str] | None = None
 
 
 class JitterSmoothness:
