@@ -134,3 +134,14 @@ def test_without_jitter_the_corrections_are_the_polynomial_ones():
     p = _params(a, 6)
     np.testing.assert_allclose(a.project(p, X), b.project(p, X), atol=1e-12)
     np.testing.assert_allclose(b.jitter(p, [0.0, 0.1]), 0.0)
+
+
+def test_jitter_corrections_pickle():
+    import pickle
+
+    corr = CAM.corrections(1, jitter_lines=120.0)
+    copy = pickle.loads(pickle.dumps(corr))
+    _, X = _points(CAM, seed=7)
+    p = _params(corr, 8)
+    np.testing.assert_array_equal(copy.project(p, X), corr.project(p, X))
+    assert copy.names == corr.names and copy.knot_spacing == corr.knot_spacing
