@@ -145,3 +145,20 @@ def test_jitter_corrections_pickle():
     p = _params(corr, 8)
     np.testing.assert_array_equal(copy.project(p, X), corr.project(p, X))
     assert copy.names == corr.names and copy.knot_spacing == corr.knot_spacing
+
+
+def test_applied_jitter_stays_within_the_original_samples():
+    """An EO that spans the image lines only (as an ISD's): the corrected EO is not extrapolated beyond it."""
+    from lunarmap.camera import LineScanCamera
+    from lunarmap.simulate.orbits import NAC_LINE_TIME, polar_orbit_eo
+
+    half = 0.5 * 2000 * NAC_LINE_TIME
+    eo = polar_orbit_eo(lat_center=10.0, lon=30.0, altitude=50e3, half_span=half, step=half / 20, roll_deg=5.0)
+    cam = LineScanCamera(nac_like_interior(n_lines=2000, n_samples=1000), eo, CAM.shape,
+                         line_times=(-half, NAC_LINE_TIME))
+    corr = cam.corrections(1, jitter_lines=500.0)       # the spline's span reaches 500 lines beyond the image
+    new = corr.apply(_params(corr, 9))
+    assert new.eo.time_range == pytest.approx(eo.time_range, abs=1e-12)
+    _, X = _points(cam, seed=10)
+    li, sa = new.ground_to_image(X, within_image=False)
+    np.testing.assert_allclose(np.column_stack([li, sa]), corr.project(_params(corr, 9), X), atol=1e-4)

@@ -663,6 +663,11 @@ class LineScanCorrections:
         step = max(1.0, N / _JITTER_SAMPLES_PER_KNOT)
         first, last = -N, (self.n_segments + 1) * N
         dense = cam.image_time(np.linspace(first, last, int(np.ceil((last - first) / step)) + 1))
+        # never beyond the original samples: the EO would be extrapolated there
+        t_lo, t_hi = eo.time_range
+        dense = dense[(dense >= t_lo) & (dense <= t_hi)]
+        if dense.size < 2:
+            dense = np.array([t_lo, t_hi])
         lo, hi = float(np.min(dense)), float(np.max(dense))
         gap = 0.5 * float(np.min(np.abs(np.diff(dense))))
         # the original samples away from the dense grid keep the trajectory's span and shape
