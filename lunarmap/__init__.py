@@ -67,6 +67,7 @@ _LAZY = {
     "network_from_tiepoints": ("lunarmap.adjust", "network_from_tiepoints"),
     "build_block": ("lunarmap.adjust", "build_block"),
     "NavigationSpec": ("lunarmap.adjust", "NavigationSpec"),
+    "JitterSpec": ("lunarmap.adjust", "JitterSpec"),
     "write_adjusted": ("lunarmap.adjust", "write_adjusted"),
     # ground coordinates (body-fixed metres) <-> planetocentric longitude, latitude (degrees), height (metres)
     "xyz_to_lonlat_height": ("lunarmap.camera.geodesy", "xyz_to_lonlat_height"),

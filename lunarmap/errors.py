@@ -23,6 +23,7 @@ __all__ = [
     "GeometryError",
     "NoIntersectionError",
     "DistortionPartialsError",
+    "JitterKnotSpacingError",
     "ConvergenceError",
     "LunarmapWarning",
     "warn",
@@ -128,6 +129,11 @@ class NoIntersectionError(GeometryError):
 
 class DistortionPartialsError(InvalidInputError):
     """A distortion model has no analytic partial derivatives, so it cannot be adjusted."""
+
+
+class JitterKnotSpacingError(InvalidInputError):
+    """A line-scan jitter spline's knot spacing is not a finite number of lines >= 1 (the attitude
+    cannot be resolved below one exposure)."""
 
 
 class ConvergenceError(GeometryError):

@@ -14,7 +14,9 @@ control points and full posterior precision.
   snooping of every observation group, variance components per group, per-orbit offset/drift
   detection, with a report of every decision (issue 11);
 * :class:`ReferenceDtm` (:mod:`.terrain`) -- reference DTM heights as observations of the tie points
-  (issue 30), one variance-component group per DTM, snooped like the others.
+  (issue 30), one variance-component group per DTM, snooped like the others;
+* :class:`JitterSmoothness` (:mod:`.jitter`) -- the smoothness prior of line-scan jitter splines
+  (``SensorImageModel(jitter_lines=...)``), an observation group of its own.
 """
 
 from ..errors import (
@@ -33,6 +35,7 @@ from .control_points import lonlat_covariance_to_xyz, lonlat_priors
 from .export import AdjustedOrientation, adjusted_image_support, write_adjusted
 from .factor import available_backends, factorize
 from .intersection import IntersectionResult, intersect_points
+from .jitter import JitterSmoothness, JitterSpec
 from .navigation import NavigationObservations
 from .network import ControlNetwork, merge_networks, network_from_tiepoints, read_network, write_network
 from .problem import BundleProblem, ImageModel, ImageObservations, PointPriors, ReducedTerm
@@ -62,7 +65,7 @@ __all__ = [
     "AdjustmentResult", "AdjustmentState", "SolverOptions", "solve",
     "lonlat_priors", "lonlat_covariance_to_xyz",
     "ControlNetwork", "read_network", "write_network", "network_from_tiepoints", "merge_networks",
-    "NavigationObservations", "ReferenceDtm", "DtmGrid", "DtmHeights", "dtm_heights",
+    "NavigationObservations", "JitterSmoothness", "JitterSpec", "ReferenceDtm", "DtmGrid", "DtmHeights", "dtm_heights",
     "ObservationGroups", "VarianceComponents", "estimate_variance_components", "observation_groups",
     "variance_component_covariance",
     "ScaledTerm", "Weights", "reweighted_problem", "QCOptions", "QCReport", "QCResult", "quality_control",

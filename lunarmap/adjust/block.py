@@ -34,6 +34,7 @@ from ..camera.geodesy import enu_basis, xyz_to_lonlat_height
 from ..camera.sensor import SensorModel
 from ..errors import AdjustmentInputError, UnobservedParameterError
 from .intersection import intersect_points
+from .jitter import JitterSmoothness, JitterSpec
 from .navigation import NavigationObservations
 from .network import ControlNetwork, network_from_tiepoints
 from .problem import BundleProblem
@@ -167,6 +168,8 @@ class Block:
         The reference-DTM terms (one per DTM), in the order given.
     starts : xarray.Dataset or None
         The start-value decisions of :func:`build_block` (points started from a best guess, and why).
+    jitter : JitterSmoothness or None
+        The smoothness prior of the line-scan jitter splines (``build_block(jitter=...)``).
     """
 
     names: list[str]
@@ -178,6 +181,7 @@ class Block:
     #: points whose intersection failed its bounds and were started from a best guess, with why
     #: (:func:`~lunarmap.adjust.start.screen_starts`); None for a block not built by :func:`build_block`
     starts: xr.Dataset | None = None
+    jitter: JitterSmoothness | None = None
 
     @property
     def sensors(self) -> dict[str, SensorModel]:
@@ -187,7 +191,8 @@ class Block:
 def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr.Dataset, *, degree: int = 1,
                 navigation: NavigationSpec | None = None, times: Mapping[str, float] | None = None,
                 representation: str = "covariance", terrain: Sequence[ReferenceDtm] = (),
-                unintersectable: str = "raise", max_range: float = MAX_RANGE) -> Block:
+                unintersectable: str = "raise", max_range: float = MAX_RANGE,
+                jitter: JitterSpec | None = None) -> Block:
     """Build an adjustment block (see the module docstring).
 
     Parameters
@@ -216,6 +221,10 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
         control to judge its rays (:func:`~lunarmap.adjust.start.screen_starts`).
     max_range : float
         The distance bound of an intersection, times its camera's height above the reference sphere.
+    jitter : JitterSpec, optional
+        A cubic B-spline attitude correction (knots every ``jitter.knot_lines`` lines) on top of the
+        polynomial of the line-scan images (all, or ``jitter.images``), with its smoothness prior as an
+        observation group of its own (``Block.jitter``, :mod:`lunarmap.adjust.jitter`).
 
     Returns
     -------
@@ -234,6 +243,8 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
         A camera whose distortion has no partial derivatives.
     DtmCrsError, DtmCoverageError, TerrainInputError
         A reference DTM without a Moon CRS, covering no tie point, or unreadable.
+    JitterKnotSpacingError
+        A jitter knot spacing below one line.
     """
     net = network_from_tiepoints(network) if isinstance(network, xr.Dataset) else network
     if not isinstance(net, ControlNetwork):
@@ -254,7 +265,16 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
                          measure_image=np.array([order[k] for k in net.image_id], np.int64)[net.measure_image],
                          line_sample=net.line_sample, measure_sigma=net.measure_sigma, image_id=np.array(names),
                          xyz_cov=net.xyz_cov, radius=net.radius, body=net.body, attrs=net.attrs)
-    model = SensorImageModel([sensors[k] for k in names], degree=degree, names=names)
+    spacing = None
+    if jitter is not None:
+        if not isinstance(jitter, JitterSpec):
+            raise AdjustmentInputError(f"jitter must be a JitterSpec, got {type(jitter).__name__}")
+        wanted = set(names) if jitter.images is None else {str(k) for k in jitter.images}
+        missing = sorted(wanted - set(names))
+        if missing:
+            raise AdjustmentInputError(f"jitter: {len(missing)} image(s) not in the block: {', '.join(missing[:5])}")
+        spacing = [jitter.knot_lines if k in wanted else None for k in names]
+    model = SensorImageModel([sensors[k] for k in names], degree=degree, names=names, jitter_lines=spacing)
     params0 = model.initial_params()
     obs = net.observations()
     X0 = model.initial_points(params0, obs.cam_idx, obs.pt_idx, obs.xy, net.n_points)
@@ -289,8 +309,12 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
         cand = np.isin(net.point_type, list(ref.point_types))
         dtms.append(dtm_heights(ref, X0, model.n_images * model.n_params, model.n_images, cand, net.point_id))
     terms += dtms
+    smooth = None
+    if jitter is not None:
+        smooth = JitterSmoothness(model, jitter.sigma, jitter.zero_sigma)
+        terms.append(smooth)
     problem = net.to_problem(model, params0, points=X0, terms=terms, representation=representation)
-    return Block(names, model, net, problem, nav, dtms, starts)
+    return Block(names, model, net, problem, nav, dtms, starts, smooth)
 
 
 @dataclass

@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..camera.corrections import FrameCorrections, FrameStack
+from ..camera.linescan import LineScanCamera
 from ..camera.sensor import Corrections, SensorModel
 from ..errors import AdjustmentInputError, DistortionPartialsError
 from .intersection import midpoint_intersection
@@ -38,6 +39,11 @@ class SensorImageModel:
         One sensor model per image (its orientation is the reference).
     degree : int
         Polynomial degree in time of line-scan corrections (0, 1 or 2); ignored by other sensors.
+    jitter_lines : float, or sequence of (float or None), optional
+        Knot spacing (image lines, >= 1) of a cubic B-spline attitude correction of line-scan images on
+        top of their polynomial (:class:`~lunarmap.camera.corrections.LineScanCorrections`): one for all
+        line-scan images or one per image (``None``: that image without); ignored by other sensors. Give
+        the spline a prior (:class:`~lunarmap.adjust.jitter.JitterSmoothness`).
     corrections : sequence of Corrections, optional
         The corrections of each image, overriding ``sensor.corrections(degree)``.
     names : sequence of str, optional
@@ -49,10 +55,13 @@ class SensorImageModel:
         A sensor that is not a SensorModel, or corrections that do not belong to their sensor.
     DistortionPartialsError
         A camera whose distortion model has no partial derivatives.
+    JitterKnotSpacingError
+        A knot spacing below one line.
     """
 
     def __init__(self, sensors: Sequence[SensorModel], degree: int = 1,
-                 corrections: Sequence[Corrections] | None = None, names: Sequence[str] | None = None) -> None:
+                 corrections: Sequence[Corrections] | None = None, names: Sequence[str] | None = None,
+                 jitter_lines: float | Sequence[float | None] | None = None) -> None:
         self.sensors = list(sensors)
         if not self.sensors:
             raise AdjustmentInputError("the image model needs at least one sensor")
@@ -62,11 +71,20 @@ class SensorImageModel:
         for i, s in enumerate(self.sensors):
             if not isinstance(s, SensorModel):
                 raise AdjustmentInputError(f"{self.names[i]}: {type(s).__name__} is not a lunarmap SensorModel")
+        if jitter_lines is None or np.ndim(jitter_lines) == 0:   # type: ignore[arg-type]
+            jitter = [jitter_lines] * len(self.sensors)
+        else:
+            jitter = list(jitter_lines)   # type: ignore[arg-type]
+            if len(jitter) != len(self.sensors):
+                raise AdjustmentInputError(f"{len(jitter)} jitter knot spacings for {len(self.sensors)} sensors")
         if corrections is None:
             corr = []
-            for name, s in zip(self.names, self.sensors):
+            for name, s, jl in zip(self.names, self.sensors, jitter):
                 try:
-                    corr.append(s.corrections(degree=degree))
+                    if jl is not None and isinstance(s, LineScanCamera):
+                        corr.append(s.corrections(degree=degree, jitter_lines=jl))  # type: ignore[arg-type]
+                    else:
+                        corr.append(s.corrections(degree=degree))
                 except DistortionPartialsError as exc:
                     raise DistortionPartialsError(f"{name}: {exc}") from None
         else:

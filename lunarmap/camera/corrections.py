@@ -18,6 +18,20 @@ A ground point is imaged at the time ``t`` whose projection falls on the detecto
 line coordinate 0 of the projection, see :mod:`lunarmap.camera.linescan`); the partials follow
 the implicit-function rule ``dt/dp = -(dr/dp) / (dr/dt)``.
 
+Line-scan jitter (``LineScanCorrections(camera, degree, jitter_lines=N)``): the attitude correction
+gets a uniform cubic B-spline in the image line coordinate on top of the polynomial,
+``w(t) = sum_k w_k tau^k + sum_j B_j(line(t) / h) s_j`` with knots every ``h`` lines from line 0 to
+the last line: ``h = n_lines / round(n_lines / N)`` for the requested spacing ``N`` (a whole number
+of segments over the image), ``round(n_lines / N) + 3`` coefficients ``s_j`` per axis, radians; the
+spline holds its end values outside the image lines. A cubic B-spline reproduces every polynomial
+of degree <= 3 exactly, so its constant, linear (and quadratic) part would be collinear with the
+polynomial: the knot coefficients are parametrised as ``s = Q z`` with ``Q`` an orthonormal basis of
+the coefficients whose spline is orthogonal, over the image lines, to every polynomial of the
+polynomial's degree in ``tau``. The parameters ``jw*_l`` are ``z``; the knot coefficients are
+:meth:`LineScanCorrections.knot_coefficients`. The spline then carries only what the polynomial
+cannot, whatever priors the adjustment adds (a prior alone would leave the split between the two
+to the prior's weight), and ``|s| = |z|``.
+
 Any sensor (:class:`AffineCorrections`), 6 image-space affine parameters (LROC multi-image
 study, ``seeds/001`` Eq. 13)::
 
@@ -41,7 +55,7 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import InvalidInputError
+from ..errors import InvalidInputError, JitterKnotSpacingError
 from ..orientation.exterior import ExteriorOrientation
 from ..orientation.rotation import left_jacobian, matrix_to_quat, quat_to_matrix, rotvec_to_matrix, skew
 from .distortion import Distortion
@@ -53,7 +67,7 @@ except ImportError:  # pragma: no cover - exercised only without numba
     numba = None
 
 __all__ = ["FrameCorrections", "LineScanCorrections", "PushFrameCorrections", "AffineCorrections", "AffineCorrectedSensor",
-           "FrameStack", "pinhole_image"]
+           "FrameStack", "pinhole_image", "cubic_bspline_basis"]
 
 Array = NDArray[np.float64]
 
@@ -66,6 +80,8 @@ _LINE_TOL = 5e-9
 _DT = 1e-4            # s, central difference of dr/dt (1e-3 s left 3e-6 relative error on a 6.5-ms-line camera)
 # A line-scan point's last solved time starts its next time search if it moved less than this (m).
 _WARM_RADIUS_M = 1000.0
+# EO records per jitter knot spacing (at most one per line) of a corrected camera with jitter
+_JITTER_SAMPLES_PER_KNOT = 8.0
 
 
 def _xyz(xyz: ArrayLike) -> Array:
@@ -383,11 +399,22 @@ class LineScanCorrections:
         The reference camera (for an adjustment: its navigation orientation).
     degree : int
         Polynomial degree 0, 1 or 2 in normalised image time ``tau``.
+    jitter_lines : float, optional
+        Knot spacing, image lines (>= 1), of a cubic B-spline attitude correction on top of the
+        polynomial (module docstring); ``None`` (default): the polynomial only.
+
+    Raises
+    ------
+    JitterKnotSpacingError
+        ``jitter_lines`` not finite or below one line.
 
     Notes
     -----
     Polynomial attitude and position corrections of a narrow-angle camera are strongly
-    correlated: give them a-priori sigmas (navigation observations) or fix some.
+    correlated: give them a-priori sigmas (navigation observations) or fix some. The jitter
+    spline's coefficients are not determined by tie points alone where a ground deformation can
+    follow them (images of one track direction): give it a smoothness prior
+    (:class:`~lunarmap.adjust.jitter.JitterSmoothness`) and a datum (a jitter-free image, terrain).
     """
 
     # set by _init_polynomial
@@ -397,7 +424,7 @@ class LineScanCorrections:
     names: tuple[str, ...]
     units: tuple[str, ...]
 
-    def __init__(self, camera: Any, degree: int = 1) -> None:
+    def __init__(self, camera: Any, degree: int = 1, jitter_lines: float | None = None) -> None:
         _init_polynomial(self, camera, degree, "line-scan")
         t0, t1 = camera.image_time(np.array([0.0, float(camera.interior.n_lines)]))
         self.t_mid = 0.5 * float(t0 + t1)
@@ -406,9 +433,89 @@ class LineScanCorrections:
             raise InvalidInputError("line-scan corrections need an image spanning a positive time interval")
         self._A, self._b = _pixel_affine(camera.interior)
         self._warm: tuple[Array, Array] | None = None      # (points, times) of the last time search
+        self.n_poly = self.n_params
+        self.jitter_lines: float | None = None
+        self.knot_spacing = 0.0   # lines, the requested spacing rounded to whole segments over the image
+        self.n_segments = 0
+        self.n_knots = 0          # B-spline coefficients per axis
+        self.n_jitter = 0         # spline parameters per axis (n_knots - degree - 1)
+        self._Q = np.zeros((0, 0))
+        if jitter_lines is not None:
+            self._init_jitter(jitter_lines)
+
+    def _init_jitter(self, jitter_lines: float) -> None:
+        try:
+            N = float(jitter_lines)
+        except (TypeError, ValueError):
+            raise JitterKnotSpacingError(f"jitter knot spacing must be a number of lines, got {jitter_lines!r}") from None
+        if not (np.isfinite(N) and N >= 1.0):
+            raise JitterKnotSpacingError(f"jitter knot spacing must be >= 1 line (an attitude sample per exposure "
+                                         f"at most), got {jitter_lines!r}")
+        n_lines = float(self.sensor.interior.n_lines)
+        self.jitter_lines = N
+        # a whole number of segments over the image lines: a span ending past the last line would leave
+        # coefficients whose support barely touches the image (unobservable)
+        self.n_segments = max(1, int(np.round(n_lines / N)))
+        self.knot_spacing = n_lines / self.n_segments
+        self.n_knots = self.n_segments + 3
+        # The spline's functions are made orthogonal (over the image lines, uniformly weighted) to the
+        # polynomials in tau: coefficients in the complement of B^T P. Removing the knot-index polynomials
+        # instead (s_j = p(j)) would leave the spline able to mimic a constant to ~10 % through its end
+        # coefficients, whose knots lie outside the image: near-collinear with the polynomial.
+        lines = np.linspace(0.0, n_lines, 16 * self.n_segments + 1)
+        lines = 0.5 * (lines[1:] + lines[:-1])
+        tau = self.tau(self.sensor.image_time(lines))
+        C = cubic_bspline_basis(lines / self.knot_spacing, self.n_segments).T @ (tau[:, None] ** np.arange(self.degree + 1)[None, :])
+        Q, _ = np.linalg.qr(C, mode="complete")
+        self._Q = np.ascontiguousarray(Q[:, self.degree + 1:])
+        self.n_jitter = self.n_knots - self.degree - 1
+        self.n_params = self.n_poly + 3 * self.n_jitter
+        self.names = self.names + tuple(f"jw{ax}_{j}" for j in range(self.n_jitter) for ax in "xyz")
+        self.units = self.units + ("rad",) * (3 * self.n_jitter)
 
     def __repr__(self) -> str:
-        return f"LineScanCorrections({self.sensor!r}, degree={self.degree})"
+        jit = "" if self.jitter_lines is None else f", jitter_lines={self.jitter_lines:g}"
+        return f"LineScanCorrections({self.sensor!r}, degree={self.degree}{jit})"
+
+    @property
+    def jitter_projector(self) -> Array:
+        """``Q (n_knots, n_jitter)``: knot coefficients ``s = Q z`` of the spline parameters ``z`` of one axis."""
+        return self._Q.copy()
+
+    def knot_lines(self) -> Array:
+        """Image line coordinate of every B-spline coefficient's knot ``(n_knots,)`` (the first and last two
+        lie outside the image, as a uniform cubic B-spline needs)."""
+        if self.jitter_lines is None:
+            return np.zeros(0)
+        return (np.arange(self.n_knots, dtype=np.float64) - 1.0) * float(self.knot_spacing)
+
+    def knot_coefficients(self, params: ArrayLike) -> Array:
+        """B-spline coefficients ``(n_knots, 3)`` (radians, sensor frame) of the jitter part of ``params``."""
+        p = _params(params, self.n_params, "LineScanCorrections")
+        if self.jitter_lines is None:
+            return np.zeros((0, 3))
+        return self._Q @ p[self.n_poly:].reshape(self.n_jitter, 3)
+
+    def _jitter_rows(self, t: Array) -> Array:
+        """Rows ``(n, n_jitter)`` of the spline's parameter basis ``b(line(t) / N) Q`` at times ``t``."""
+        s = self.sensor.line_times.line(t) / self.knot_spacing
+        return cubic_bspline_basis(s, self.n_segments) @ self._Q
+
+    def jitter(self, params: ArrayLike, t: ArrayLike) -> Array:
+        """The spline's attitude correction ``(n, 3)`` radians (sensor frame) at times ``t`` (s after ``eo.epoch``);
+        zero without jitter."""
+        p = _params(params, self.n_params, "LineScanCorrections")
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        if self.jitter_lines is None:
+            return np.zeros((t.size, 3))
+        return self._jitter_rows(t) @ p[self.n_poly:].reshape(self.n_jitter, 3)
+
+    def attitude_correction(self, params: ArrayLike, t: ArrayLike) -> Array:
+        """The whole attitude correction ``w(t)`` ``(n, 3)`` radians (polynomial plus spline) at times ``t``."""
+        p = _params(params, self.n_params, "LineScanCorrections")
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        powers = self.tau(t)[:, None] ** np.arange(self.degree + 1)[None, :]
+        return powers @ p[:self.n_poly].reshape(self.degree + 1, 2, 3)[:, 0, :] + self.jitter(p, t)
 
     def tau(self, t: ArrayLike) -> Array:
         """Normalised image time (dimensionless, -1 .. 1 over the image) of times ``t`` (s after ``eo.epoch``)."""
@@ -423,9 +530,13 @@ class LineScanCorrections:
             t = np.where(lost, self.t_mid, t)
         tau = self.tau(t)
         powers = tau[:, None] ** np.arange(self.degree + 1)[None, :]           # (n, d+1)
-        P = p.reshape(self.degree + 1, 2, 3)                                   # [k, (w, c), xyz]
+        P = p[:self.n_poly].reshape(self.degree + 1, 2, 3)                     # [k, (w, c), xyz]
         w = powers @ P[:, 0, :]
         dC = powers @ P[:, 1, :]
+        g = None
+        if self.jitter_lines is not None:
+            g = self._jitter_rows(t)                                           # (n, n_jitter)
+            w = w + g @ p[self.n_poly:].reshape(self.n_jitter, 3)
         Rt = np.swapaxes(cam.eo.rotation_at(t), -1, -2)                        # body -> sensor
         M = rotvec_to_matrix(w) @ Rt
         v = np.einsum("nij,nj->ni", M, X - cam.eo.position_at(t) - dC)
@@ -435,7 +546,7 @@ class LineScanCorrections:
             v = np.where(lost[:, None], np.nan, v)
             if dv is not None:
                 dv = np.where(lost.reshape((-1,) + (1,) * (dv.ndim - 1)), np.nan, dv)
-        return pix, dv, v, M, w, powers
+        return pix, dv, v, M, w, powers, g
 
     def _residual(self, p: Array, X: Array, t: Array) -> Array:
         # the projection's image-line coordinate: 0 on the detector line (the image line is time)
@@ -507,9 +618,13 @@ class LineScanCorrections:
         p = _params(params, self.n_params, "LineScanCorrections")
         X = _xyz(xyz)
         t = self._solve_time(p, X)
-        pix, dv, v, M, w, powers = self._geometry(p, X, t, True)
+        pix, dv, v, M, w, powers, g = self._geometry(p, X, t, True)
         d_x, d_c, d_w = _eo_partials(dv, v, M, w)
         d_p = _polynomial_partials(d_w, d_c, powers)
+        if g is not None:
+            # d/dz_(j, axis) = d/dw_axis * b_j(line(t) / N)   (parameters ordered [j, axis])
+            d_s = (g[:, None, :, None] * d_w[:, :, None, :]).reshape(d_w.shape[0], 2, 3 * self.n_jitter)
+            d_p = np.concatenate([d_p, d_s], axis=2)
         # implicit time: r(t, p, X) = 0
         plus = self._geometry(p, X, t + _DT, False)[0]
         minus = self._geometry(p, X, t - _DT, False)[0]
@@ -531,13 +646,64 @@ class LineScanCorrections:
 
         The corrected EO is sampled at the original EO's times; its interpolation then follows
         the corrected trajectory as closely as the original follows its own (corrections are
-        low-order polynomials in time).
+        low-order polynomials in time). With jitter, the EO is resampled over the spline's span (8
+        quaternion records per knot spacing, at most one per line) so that the spline's attitude is
+        in the records and a kernel written from the camera carries it; the spline holds its end
+        values beyond its span.
         """
         p = _params(params, self.n_params, "LineScanCorrections")
         cam = self.sensor
-        new = _polynomial_eo(cam.eo, p, self.degree, self.tau(cam.eo.times), self.t_half,
-                             f"line-scan EO corrections, degree {self.degree}")
+        if self.jitter_lines is None:
+            new = _polynomial_eo(cam.eo, p, self.degree, self.tau(cam.eo.times), self.t_half,
+                                 f"line-scan EO corrections, degree {self.degree}")
+            return type(cam)(cam.interior, new, cam.shape, line_times=cam.line_times, workers=cam.workers)
+        eo = cam.eo
+        # the spline's span (0 .. n_segments knots) and one knot spacing either side, where it holds its end values
+        N = self.knot_spacing
+        step = max(1.0, N / _JITTER_SAMPLES_PER_KNOT)
+        first, last = -N, (self.n_segments + 1) * N
+        dense = cam.image_time(np.linspace(first, last, int(np.ceil((last - first) / step)) + 1))
+        # never beyond the original samples: the EO would be extrapolated there
+        t_lo, t_hi = eo.time_range
+        dense = dense[(dense >= t_lo) & (dense <= t_hi)]
+        if dense.size < 2:
+            dense = np.array([t_lo, t_hi])
+        lo, hi = float(np.min(dense)), float(np.max(dense))
+        gap = 0.5 * float(np.min(np.abs(np.diff(dense))))
+        # the original samples away from the dense grid keep the trajectory's span and shape
+        outside = eo.times[(eo.times < lo - gap) | (eo.times > hi + gap)]
+        times = np.unique(np.concatenate([outside, dense]))
+        base = ExteriorOrientation(epoch=eo.epoch, times=times, positions=eo.position_at(times),
+                                   velocities=eo.velocity_at(times), quaternions=eo.quaternion_at(times),
+                                   sun_times=eo.sun_times, sun_positions=eo.sun_positions, body_frame=eo.body_frame,
+                                   attrs=eo.attrs)
+        poly = _polynomial_eo(base, p[:self.n_poly], self.degree, self.tau(times), self.t_half, "")
+        E = rotvec_to_matrix(self.attitude_correction(p, times))
+        R = quat_to_matrix(base.quaternions) @ np.swapaxes(E, -1, -2)
+        note = f"line-scan EO corrections, degree {self.degree}, jitter spline every {self.jitter_lines:g} lines"
+        new = ExteriorOrientation(epoch=eo.epoch, times=times, positions=poly.positions, velocities=poly.velocities,
+                                  quaternions=matrix_to_quat(R), sun_times=eo.sun_times, sun_positions=eo.sun_positions,
+                                  body_frame=eo.body_frame, attrs={**eo.attrs, "corrected": note})
         return type(cam)(cam.interior, new, cam.shape, line_times=cam.line_times, workers=cam.workers)
+
+
+def cubic_bspline_basis(s: ArrayLike, n_segments: int) -> Array:
+    """Values ``(n, n_segments + 3)`` of the uniform cubic B-spline basis at ``s`` (knot units, 0 .. n_segments).
+
+    Segment ``k = floor(s)`` (``0 <= k < n_segments``) carries coefficients ``k .. k + 3`` with the
+    weights ``(1 - u)^3 / 6``, ``(3u^3 - 6u^2 + 4) / 6``, ``(-3u^3 + 3u^2 + 3u + 1) / 6``, ``u^3 / 6``
+    of ``u = s - k``; they sum to 1. ``s`` outside ``[0, n_segments]`` takes the end value.
+    """
+    x: Array = np.clip(np.asarray(s, dtype=float).reshape(-1), 0.0, float(n_segments))
+    k = np.minimum(np.floor(x), n_segments - 1).astype(np.int64)
+    u = x - k
+    u2, u3 = u * u, u * u * u
+    b = np.stack([(1.0 - u) ** 3, 3.0 * u3 - 6.0 * u2 + 4.0, -3.0 * u3 + 3.0 * u2 + 3.0 * u + 1.0, u3], axis=1) / 6.0
+    out = np.zeros((x.size, n_segments + 3))
+    rows = np.arange(x.size)
+    for i in range(4):
+        out[rows, k + i] = b[:, i]
+    return out
 
 
 def _polynomial_eo(eo: ExteriorOrientation, p: Array, degree: int, tau: Array, t_half: float,

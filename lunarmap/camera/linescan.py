@@ -215,12 +215,13 @@ class LineScanCamera(_CameraModel):
         """Exposure time of the image's middle line, ephemeris seconds (TDB past J2000)."""
         return float(self.eo.epoch + self.image_time(0.5 * self.interior.n_lines))
 
-    def corrections(self, degree: int | None = 1) -> "Any":
-        """Position/attitude correction polynomials of ``degree`` (0-2) in time.
+    def corrections(self, degree: int | None = 1, jitter_lines: float | None = None) -> "Any":
+        """Position/attitude correction polynomials of ``degree`` (0-2) in time, optionally with a jitter
+        spline of the attitude with knots every ``jitter_lines`` lines.
 
         See :class:`~lunarmap.camera.corrections.LineScanCorrections`; ``None`` means degree 1.
         """
-        return LineScanCorrections(self, 1 if degree is None else degree)
+        return LineScanCorrections(self, 1 if degree is None else degree, jitter_lines=jitter_lines)
 
     # -- image to ground -------------------------------------------------
     def image_time(self, line: ArrayLike) -> Array:

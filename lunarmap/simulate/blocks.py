@@ -85,6 +85,11 @@ class SimulatedBlock:
         Correction degree the truth is expressed in.
     camera : ndarray (n_img,) int
         Camera of every image (``frame_block(cameras=...)``; 0 otherwise).
+    true_jitter : list of (times (m,), angles (m, 3))
+        Per image, the attitude jitter in the TRUE cameras' records (``linescan_site(jitter=...)``):
+        seconds after the EO epoch and the sensor-frame rotation vectors (radians) the navigation
+        misses (``true = nav`` with the correction ``w(t) = (polynomial) + angles(t)``); empty arrays for
+        images without jitter. ``true_params`` hold the polynomial part only.
     """
 
     true_cameras: list
@@ -105,6 +110,7 @@ class SimulatedBlock:
     drift_sigma: Array = field(default_factory=lambda: np.zeros(6))
     degree: int = 0
     camera: NDArray[np.int64] | None = None
+    true_jitter: list = field(default_factory=list)
 
 
 def local_enu(xyz: Array) -> Array:
@@ -315,9 +321,19 @@ def _per_orbit(name: str, values: ArrayLike, orbits: int) -> Array:
 
 
 def _nac_camera(lon_orbit: float, lat: float, roll: float, altitude: float, n_lines: int, n_samples: int,
-                k1: float | None, perturb: tuple[Array, Array, Array] | None = None) -> LineScanCamera:
+                k1: float | None, perturb: tuple[Array, Array, Array] | None = None,
+                jitter: tuple[float, object] | None = None) -> LineScanCamera:
+    step = 0.05 if jitter is None else float(jitter[0])
     eo = polar_orbit_eo(lat_center=lat, lon=lon_orbit, altitude=altitude, half_span=2.0 + n_lines * NAC_LINE_TIME,
-                        step=0.05, roll_deg=roll)
+                        step=step, roll_deg=roll)
+    if jitter is not None:
+        # truth = the smooth attitude with a sensor-frame jitter j(t) at every record: R = M exp([j]x)^T, so
+        # that the correction from the (smooth) navigation is w(t) = bias + drift t + j(t)
+        angles = jitter[1](eo.times)      # type: ignore[operator]
+        R = quat_to_matrix(eo.quaternions) @ np.swapaxes(rotvec_to_matrix(angles), -1, -2)
+        eo = ExteriorOrientation(epoch=eo.epoch, times=eo.times, positions=eo.positions, velocities=eo.velocities,
+                                 quaternions=matrix_to_quat(R), sun_times=eo.sun_times, sun_positions=eo.sun_positions,
+                                 attrs={**eo.attrs, "jitter": 1})
     if perturb is not None:
         # navigation = truth with a position error and a sensor-frame attitude error a(t) = bias + t drift
         dpos, datt, ddrift = perturb
@@ -343,7 +359,9 @@ def linescan_site(rolls: tuple[float, ...] = (-15.0, 0.0, 15.0), degree: int = 1
                   n_samples: int = 1500, altitude: float = 50e3, site: tuple[float, float] = (30.0, 20.0),
                   pos_sigma: float = 20.0, att_sigma: float = 50e-6, att_drift_sigma: float = 20e-6,
                   control_sigma: float = 0.3, relief: float = 50.0, k1: float | None = 1.81e-5,
-                  seed: int = 0) -> SimulatedBlock:
+                  seed: int = 0, jitter: Sequence[tuple[float, float]] = (), jitter_noise: float = 0.0,
+                  jitter_images: Sequence[int] | None = None, jitter_step: float = 0.002,
+                  point_extent: float = 0.35) -> SimulatedBlock:
     """NAC-like pushbroom images of one site from several rolled orbits (module docstring).
 
     Parameters
@@ -356,20 +374,58 @@ def linescan_site(rolls: tuple[float, ...] = (-15.0, 0.0, 15.0), degree: int = 1
         Navigation errors per image: position (m per axis), attitude bias (rad), attitude drift (rad/s).
     k1 : float or None
         ``lrolrocnac`` distortion coefficient (mm^-2) of the cameras; ``None`` for none.
+    jitter : sequence of (amplitude (rad), frequency (Hz))
+        Attitude jitter of the TRUE cameras (LRO NAC CK-like: 1-3 urad at 1-10 Hz): per image and axis,
+        the sum of these sinusoids with random phases, plus white noise of ``jitter_noise`` radians per
+        attitude record; records every ``jitter_step`` seconds. The navigation cameras have none (their
+        attitude is the smooth one with its bias and drift). See ``SimulatedBlock.true_jitter``.
+    jitter_images : sequence of int, optional
+        The images with jitter (default all, if ``jitter`` or ``jitter_noise`` is given).
+    point_extent : float
+        Half-size of the area the candidate points are drawn in, as a fraction of the ground size of
+        the image's smaller dimension (times ``n_lines / min(n_lines, n_samples)`` along track): 0.35
+        (the default) covers about the central third of the lines, 1.0 nearly all of them (a jitter
+        spline needs points on all its knots).
     """
     if degree < 1:
         raise InvalidInputError("the simulated attitude drift needs a correction degree >= 1")
+    waves = [(float(a), float(f)) for a, f in jitter]
+    if any(not (np.isfinite(a) and np.isfinite(f) and a >= 0 and f > 0) for a, f in waves) or \
+            not (np.isfinite(jitter_noise) and jitter_noise >= 0) or not (np.isfinite(jitter_step) and jitter_step > 0):
+        raise InvalidInputError("jitter needs (amplitude >= 0 rad, frequency > 0 Hz) pairs, jitter_noise >= 0 rad "
+                                "and jitter_step > 0 s")
+    jittered = set(range(len(rolls)) if jitter_images is None else (int(i) for i in jitter_images)) \
+        if (waves or jitter_noise > 0) else set()
     rng = np.random.default_rng(seed)
+    jit_rng = np.random.default_rng([seed, 30])     # its own stream: the rest of the block is the jitter-free one
+    true_jitter = []
     lon0, lat0 = site
     true_cams, nav_cams, truth = [], [], []
-    for roll in rolls:
+    for i_img, roll in enumerate(rolls):
         lon_o = lon0
         for _ in range(3):   # shift the orbit until the centre pixel looks at the site
             g = _nac_camera(lon_o, lat0, roll, altitude, n_lines, n_samples, k1).image_to_ground(
                 n_lines / 2, n_samples / 2, 0.0)
             lon_o -= float(xyz_to_lonlat_height(g)[0] - lon0)
         dpos, datt, ddrift = (rng.normal(0, s, 3) for s in (pos_sigma, att_sigma, att_drift_sigma))
-        true_cams.append(_nac_camera(lon_o, lat0, roll, altitude, n_lines, n_samples, k1))
+        spec = None
+        if i_img in jittered:
+            phases = jit_rng.uniform(0.0, 2.0 * np.pi, (len(waves), 3))
+            noise_seed = int(jit_rng.integers(2**31))
+
+            def angles(t: Array, phases: Array = phases, noise_seed: int = noise_seed) -> Array:
+                a = np.zeros((t.size, 3))
+                for (amp, freq), ph in zip(waves, phases):
+                    a += amp * np.sin(2.0 * np.pi * freq * t[:, None] + ph[None, :])
+                return a + np.random.default_rng(noise_seed).normal(0.0, jitter_noise, a.shape)
+
+            spec = (jitter_step, angles)
+        cam_true = _nac_camera(lon_o, lat0, roll, altitude, n_lines, n_samples, k1, jitter=spec)
+        true_cams.append(cam_true)
+        if spec is not None:
+            true_jitter.append((cam_true.eo.times.copy(), spec[1](cam_true.eo.times)))
+        else:
+            true_jitter.append((np.zeros(0), np.zeros((0, 3))))
         nav_cams.append(_nac_camera(lon_o, lat0, roll, altitude, n_lines, n_samples, k1, (dpos, datt, ddrift)))
         truth.append((dpos, datt, ddrift))
     n_par = 6 * (degree + 1)
@@ -380,7 +436,9 @@ def linescan_site(rolls: tuple[float, ...] = (-15.0, 0.0, 15.0), degree: int = 1
         true_params[i, 3:6] = -dpos
         true_params[i, 6:9] = corr.t_half * ddrift
 
-    half = 0.35 * min(n_lines, n_samples) * 0.5 * altitude * 0.007 / 699.62 / MOON_RADIUS * 180 / np.pi
+    if not (np.isfinite(point_extent) and 0 < point_extent <= 1.5):
+        raise InvalidInputError(f"point_extent must be in (0, 1.5], got {point_extent!r}")
+    half = point_extent * min(n_lines, n_samples) * 0.5 * altitude * 0.007 / 699.62 / MOON_RADIUS * 180 / np.pi
     m = 4 * n_points
     lon = lon0 + rng.uniform(-half, half, m) / np.cos(np.radians(lat0))
     lat = lat0 + rng.uniform(-half, half, m) * n_lines / min(n_lines, n_samples)
@@ -393,7 +451,8 @@ def linescan_site(rolls: tuple[float, ...] = (-15.0, 0.0, 15.0), degree: int = 1
     return SimulatedBlock(true_cams, nav_cams, true_params, X, meas, np.zeros(len(rolls), np.int64),
                           times - times.mean(), control, check, ctl_xyz, float(control_sigma),
                           nav_sigma=np.array([att_sigma] * 3 + [pos_sigma] * 3),
-                          drift_sigma=np.array([att_drift_sigma] * 3 + [0.0] * 3), degree=degree)
+                          drift_sigma=np.array([att_drift_sigma] * 3 + [0.0] * 3), degree=degree,
+                          true_jitter=true_jitter)
 
 
 def _control_and_check(X: Array, meas: Measurements, n_control: int, n_check: int, control_sigma: float,

@@ -57,6 +57,12 @@ Layout (every relative path is taken relative to the configuration file's folder
     slope_baseline = 48.0            # optional: slope of the partials from heights this far apart, m
                                      # (a noisy DTM's cell slopes are its noise; see lunarmap.adjust.terrain)
 
+    [adjust.jitter]                  # optional: line-scan attitude jitter splines (lunarmap.adjust.jitter)
+    knot_lines = 100.0               # knot spacing of the cubic B-spline, image lines (>= 1)
+    sigma = 2e-6                     # smoothness prior: sigma of a second difference of knot coefficients, rad
+    zero_sigma = 1e-5                # optional: weak zero prior of the spline parameters, rad
+    images = ["orbit1_nac"]          # optional: the images that get a spline (default every line-scan image)
+
     [adjust.qc]                      # optional: quality control of the adjustment (lunarmap.adjust.quality_control)
     steps = ["baarda"]               # in this order; any of "sequent", "robust", "baarda", "variance", "offsets"
                                      # (["robust", "baarda"] for tie points with many mismatches)
@@ -90,7 +96,7 @@ import re
 import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 from ..errors import ConfigError
 
@@ -178,6 +184,28 @@ class TerrainDtmConfig:
 
 
 @dataclass(frozen=True)
+class JitterConfig:
+    """``[adjust.jitter]`` (see :class:`lunarmap.adjust.JitterSpec`).
+
+    Attributes
+    ----------
+    knot_lines : float
+        Knot spacing, image lines (>= 1).
+    sigma : float
+        Sigma of a second difference of knot coefficients, radians.
+    zero_sigma : float or None
+        Weak zero prior of the spline parameters, radians.
+    images : tuple of str or None
+        The images with a spline (None: every line-scan image).
+    """
+
+    knot_lines: float
+    sigma: float
+    zero_sigma: float | None = None
+    images: tuple[str, ...] | None = None
+
+
+@dataclass(frozen=True)
 class RunConfig:
     """A validated run configuration (see the module docstring)."""
 
@@ -201,6 +229,7 @@ class RunConfig:
     navigation: NavigationConfig | None = None
     qc: QCConfig | None = None
     terrain: tuple[TerrainDtmConfig, ...] = ()
+    jitter: JitterConfig | None = None
     html: bool = True
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -222,7 +251,7 @@ _SCHEMA: dict[str, dict[str, tuple[type | tuple[type, ...], bool]]] = {
     "tiepoints": {"cell": (int, False), "search": ((int, float), False), "min_overlap": ((int, float), False),
                   "max_points": (int, False)},
     "adjust": {"degree": (int, False), "estimate_tie_variance": (bool, False), "ftol": ((int, float), False),
-               "navigation": (dict, False), "qc": (dict, False), "terrain": (dict, False)},
+               "navigation": (dict, False), "qc": (dict, False), "terrain": (dict, False), "jitter": (dict, False)},
     "report": {"html": (bool, False)},
 }
 _NAV = {"position_sigma": ((int, float), True), "attitude_sigma": ((int, float), True),
@@ -233,6 +262,8 @@ _QC = {"steps": (list, False), "sequent_limit_km": ((int, float), False), "robus
        "baarda_sigma0": (str, False), "baarda_separable": (bool, False),
        "downweight_factor": ((int, float), False), "max_rounds": (int, False), "max_seconds": ((int, float), False)}
 _TERRAIN = {"dtm": (list, True)}
+_JITTER = {"knot_lines": ((int, float), True), "sigma": ((int, float), True), "zero_sigma": ((int, float), False),
+           "images": (list, False)}
 _TERRAIN_DTM = {"path": (str, True), "sigma": ((int, float), True), "name": (str, False),
                 "slope_baseline": ((int, float), False)}
 _IMAGE = {"name": (str, True), "label": (str, True), "pixels": (str, True), "group": ((str, int), False)}
@@ -317,6 +348,31 @@ def _qc_config(q: Mapping[str, Any], navigation: bool, largest_group: int, src: 
                     bool(q.get("baarda_separable", d.baarda_separable)),
                     int(q["max_rounds"]) if "max_rounds" in q else None,
                     float(q["max_seconds"]) if "max_seconds" in q else None)
+
+
+def _jitter_config(t: Any, names: Sequence[str], src: str) -> JitterConfig:
+    if not isinstance(t, dict):
+        raise ConfigError(f"{src}: [adjust.jitter] must be a table")
+    _check_table(t, _JITTER, "adjust.jitter", src)
+    knots = float(t["knot_lines"])
+    if not (knots >= 1.0 and knots < float("inf")):
+        raise ConfigError(f"{src}: adjust.jitter.knot_lines must be >= 1 line, got {t['knot_lines']!r}")
+    sigma = float(t["sigma"])
+    if not (sigma > 0 and sigma < float("inf")):
+        raise ConfigError(f"{src}: adjust.jitter.sigma must be > 0 radians, got {t['sigma']!r}")
+    zero = None
+    if "zero_sigma" in t:
+        zero = float(t["zero_sigma"])
+        if not (zero > 0 and zero < float("inf")):
+            raise ConfigError(f"{src}: adjust.jitter.zero_sigma must be > 0 radians, got {t['zero_sigma']!r}")
+    images = None
+    if "images" in t:
+        images = tuple(t["images"])
+        unknown = [str(i) for i in images if not isinstance(i, str) or i not in names]
+        if unknown or not images:
+            raise ConfigError(f"{src}: adjust.jitter.images must name images of [[images]]"
+                              f"{': unknown ' + ', '.join(unknown[:5]) if unknown else ' (got none)'}")
+    return JitterConfig(knots, sigma, zero, images)
 
 
 def _terrain_config(t: Any, base: Path, src: str) -> tuple[TerrainDtmConfig, ...]:
@@ -414,6 +470,7 @@ def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",
             per_group[im.group or im.name] = per_group.get(im.group or im.name, 0) + 1
         qc = _qc_config(adj["qc"], nav is not None, max(per_group.values()), src)
     terrain = _terrain_config(adj["terrain"], base_p, src) if "terrain" in adj else ()
+    jitter = _jitter_config(adj["jitter"], [im.name for im in images], src) if "jitter" in adj else None
     if terrain and qc is not None and "variance" in qc.steps and "baarda" in qc.steps \
             and qc.steps.index("variance") > qc.steps.index("baarda"):
         # the w-tests of the DTM heights rest on their sigma: tested at a wrong a-priori sigma (the DTM's
@@ -453,7 +510,8 @@ def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",
         points_other_images=other_images,
         rpc_enabled=bool(rpc.get("enabled", True)), rpc_height_range=height_range, cell=cell, search=search,
         min_overlap=min_overlap, max_points=max_points or None, degree=degree, estimate_tie_variance=bool(adj.get("estimate_tie_variance", True)),
-        ftol=float(adj.get("ftol", 1e-10)), navigation=nav, qc=qc, terrain=terrain, html=bool(rep.get("html", True)))
+        ftol=float(adj.get("ftol", 1e-10)), navigation=nav, qc=qc, terrain=terrain, jitter=jitter,
+        html=bool(rep.get("html", True)))
 
 
 def load_config(path: str | os.PathLike[str]) -> RunConfig:

@@ -332,15 +332,20 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
     # the reference DTMs: their parameters and their files' content (a changed DTM reruns the adjustment)
     terrain = [{"name": d.name, "path": str(d.path), "sigma": d.sigma, "slope_baseline": d.slope_baseline}
                for d in cfg.terrain]
+    jitter = None
+    if cfg.jitter is not None:
+        jitter = {"knot_lines": cfg.jitter.knot_lines, "sigma": cfg.jitter.sigma, "zero_sigma": cfg.jitter.zero_sigma,
+                  "images": list(cfg.jitter.images) if cfg.jitter.images is not None else None}
     k_adj = step_key("adjust", [cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, groups, names]
                      + ([qc] if qc is not None else [])
+                     + ([{"jitter": jitter}] if jitter is not None else [])
                      + ([cfg.points_other_images] if points and cfg.points_other_images != "error" else [])
                      + ([[{k: v for k, v in d.items() if k != "path"} for d in terrain]] if terrain else []),
                      [isd_key[n] for n in names] + [k_tie, file_digest(cfg.points) if cfg.points is not None else ""]
                      + [file_digest(d.path) for d in cfg.terrain])
     adj = node("adjust", k_adj, adjust_step, store, k_adj, names, groups, [rec[n]["isd"] for n in names], ties,
                points, cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, attrs, qc, cfg.points_other_images,
-               terrain or None, out=[store.path("adjust", k_adj)])
+               terrain or None, jitter, out=[store.path("adjust", k_adj)])
     k_ker = step_key("kernels", None, [k_adj, kernels_digest])
     node("kernels", k_ker, kernels_step, store, k_ker, names, adj, [rec[n]["isd"] for n in names],
          str(cfg.metakernel), out=[store.path("kernels", k_ker) / "kernels.json"])

@@ -616,7 +616,7 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
                 ties: Done, points: str | None, degree: int, navigation: dict[str, Any] | None,
                 estimate_tie_variance: bool, ftol: float, attrs: dict[str, Any],
                 qc: dict[str, Any] | None = None, other_images: str = "error",
-                terrain: Sequence[dict[str, Any]] | None = None) -> Done:
+                terrain: Sequence[dict[str, Any]] | None = None, jitter: dict[str, Any] | None = None) -> Done:
     """Adjust the block on the images' rigorous cameras; write the results as netCDF and adjusted ISDs.
 
     With ``qc`` (the fields of :class:`~lunarmap.workflows.config.QCConfig`) the adjustment is quality
@@ -632,6 +632,10 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
     section and ``terrain_residuals.nc`` report them. A DTM without a Moon CRS or covering no tie point
     raises its own error (:class:`~lunarmap.errors.DtmCrsError`, :class:`~lunarmap.errors.DtmCoverageError`),
     and nothing of the step is written.
+
+    ``jitter`` (the fields of :class:`~lunarmap.workflows.config.JitterConfig`): the line-scan images get a
+    cubic B-spline attitude correction with its smoothness prior (:class:`~lunarmap.adjust.JitterSpec`), the
+    prior an observation group ``"jitter smoothness"``; the adjusted ISDs then carry the spline's attitude.
     """
     t = time.perf_counter()
     if store.has("adjust", key):
@@ -670,7 +674,13 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
                 spec = NavigationSpec(orbit={n: g or n for n, g in zip(names, groups)}, **navigation)
             refs = [ReferenceDtm(d["path"], d["sigma"], name=f"terrain {d['name']}",
                                  slope_baseline_m=d.get("slope_baseline")) for d in terrain or ()]
-            block = build_block(cams, net, degree=degree, navigation=spec, terrain=refs)
+            jspec = None
+            if jitter is not None:
+                from ..adjust.jitter import JitterSpec
+
+                jspec = JitterSpec(jitter["knot_lines"], jitter["sigma"], jitter.get("zero_sigma"),
+                                   jitter.get("images"))
+            block = build_block(cams, net, degree=degree, navigation=spec, terrain=refs, jitter=jspec)
             for d, term in zip(terrain or (), block.terrain):
                 _log.info("adjust: reference DTM %s: %d tie point heights observed (sigma %.3g m), %d outside it",
                           d["name"], term.n_obs_scalar, term.sigma, term.skipped)

@@ -502,5 +502,5 @@ def block_result(qc: QCResult, block):
     from ..block import Block, BlockResult
 
     return BlockResult(Block(block.names, block.model, block.network, qc.problem, block.navigation, block.terrain,
-                             block.starts),
+                             block.starts, block.jitter),
                        qc.result)
