@@ -13,7 +13,7 @@ import xarray as xr
 from lunarmap.errors import ImageWindowError, InvalidInputError, PyramidError
 from lunarmap.io import write_cube
 from lunarmap.io.pyramid import Pyramid, pyramid_shapes, write_pyramid
-from lunarmap.io.window import ArraySource, PixelSource, open_source
+from lunarmap.io.window import ArraySource, PixelSource
 from lunarmap.matching import MatchParams, TiePointParams, foerstner, match_points
 from lunarmap.matching.pyramid import build_pyramid
 from lunarmap.matching.resample import bicubic, bicubic_with_gradient, bilinear
@@ -97,6 +97,27 @@ def test_windows_outside_and_damaged_files_are_named(tmp_path):
         ArraySource(np.zeros(5))
 
 
+def test_pixels_in_memory_are_viewed_only_where_no_pixel_needs_masking():
+    img = _image((40, 50), seed=3)
+    v = ArraySource(img).view(3, 20, 5, 31)
+    assert np.shares_memory(v, img) and not v.flags.writeable and np.array_equal(v, img[3:20, 5:31])
+    assert ArraySource(img).view(3, 20, 5, 31, saturation=float(img.max())) is None     # a saturated pixel
+    assert ArraySource(img).view(0, 40, 0, 50, saturation=float(img.max()) + 1.0) is not None
+    assert ArraySource(img.astype(np.float32)).view(0, 4, 0, 4) is None                 # not float64
+    bad = img.copy()
+    bad[39, 49] = np.inf
+    assert ArraySource(bad).view(0, 4, 0, 4) is None
+    with pytest.raises(ImageWindowError, match="outside"):
+        ArraySource(img).view(0, 41, 0, 4)
+    # a windowed image serves them as they are, caching nothing; masked images as before
+    win = WindowedImage(img)
+    before = cache_info()["regions"]
+    assert np.shares_memory(win.region(2, 9, 4, 30), img) and cache_info()["regions"] == before
+    sat = WindowedImage(img, saturation=float(img.max()))
+    got = sat.region(0, 40, 0, 50)
+    assert not np.shares_memory(got, img) and np.isnan(got).sum() == 1
+
+
 # -- pyramids --------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("integer", [True, False])
@@ -135,10 +156,12 @@ def test_pyramid_of_another_image_or_damaged_is_refused(tmp_path):
 
 # -- the resamplers on windowed images ------------------------------------------------------------
 
-def test_resamplers_give_the_whole_images_values_bit_for_bit():
+@pytest.mark.parametrize("invalid", [True, False])    # False: regions are views of the image, not copies
+def test_resamplers_give_the_whole_images_values_bit_for_bit(invalid):
     rng = np.random.default_rng(4)
     img = _image((300, 260))
-    img[40:44, 50:53] = np.nan
+    if invalid:
+        img[40:44, 50:53] = np.nan
     win = WindowedImage(img)
     # points everywhere: inside, on integer coordinates, at and beyond the edges, NaN
     line = np.concatenate([rng.uniform(-3, 303, 4000), np.arange(0, 300.5, 0.5), [np.nan, 1.5, 299.5]])
@@ -375,6 +398,10 @@ def test_derived_levels_read_level_0_once_per_region():
         def read(self, l0, l1, s0, s1):
             calls.append((l1 - l0) * (s1 - s0))
             return super().read(l0, l1, s0, s1)
+
+        def view(self, l0, l1, s0, s1, saturation=None):      # pixels in memory are seen without a copy
+            calls.append((l1 - l0) * (s1 - s0))
+            return super().view(l0, l1, s0, s1, saturation)
 
     pyr = WindowedImage(Counting(img)).pyramid(3)
     whole = pyr[1].region(0, 128, 0, 128)

@@ -214,7 +214,8 @@ def affine_windows(image: Any, cl: Array, cs: Array, a: Array, r: int) -> Array:
     yl = cl[:, None] + a[:, 0, 0, None] * u + a[:, 0, 1, None] * v
     xs = cs[:, None] + a[:, 1, 0, None] * u + a[:, 1, 1, None] * v
     for rows, (a0, a1, b0, b1) in region_groups(yl - 0.5, xs - 0.5, image.shape, 1, 2):
-        reg = np.ascontiguousarray(image.region(a0, a1, b0, b1), dtype=float)
+        # a view into the cached region or the image in memory: the kernel reads it strided (no copy)
+        reg = np.asarray(image.region(a0, a1, b0, b1), dtype=float)
         sub = np.empty((rows.size, m, m))
         _affine_kernel(reg, cl[rows], cs[rows], a[rows], r, a0 + 0.5, b0 + 0.5, sub)
         out[rows] = sub

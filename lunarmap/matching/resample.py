@@ -135,8 +135,25 @@ def _cubic_setup(image: NDArray, line: ArrayLike, sample: ArrayLike) -> tuple[
     # Truncation equals floor here (yc, xc >= 1).
     i = np.minimum(yc.astype(np.intp), h - 3)
     j = np.minimum(xc.astype(np.intp), w - 3)
-    base = (i - 1) * w + (j - 1)
-    return img.ravel(), base, yc - i, xc - j, inside, w, shape
+    flat, step = _flat(img)
+    base = (i - 1) * step + (j - 1)
+    return flat, base, yc - i, xc - j, inside, step, shape
+
+
+def _flat(img: Array) -> tuple[Array, int]:
+    """The pixels as one flat array and its step from one line to the next (elements).
+
+    A view with contiguous lines (a window of a cached region or of an image in memory) is read in
+    place, its lines ``step`` apart in the array it views: no copy of the region (issue 32, item 5).
+    """
+    h, w = img.shape
+    s0, s1 = img.strides
+    if img.flags.c_contiguous or h == 1 or s1 != img.itemsize or s0 % img.itemsize or s0 < w * img.itemsize:
+        return img.ravel(), w
+    step = s0 // img.itemsize
+    flat = np.lib.stride_tricks.as_strided(img, shape=((h - 1) * step + w,), strides=(img.itemsize,),
+                                           writeable=False)
+    return flat, step
 
 
 def bicubic(image: NDArray, line: ArrayLike, sample: ArrayLike) -> Array:

@@ -156,6 +156,10 @@ class WindowedImage:
         if not (0 <= l0 < l1 <= h and 0 <= s0 < s1 <= w):
             raise InvalidInputError(f"{self.name}: region lines [{l0}, {l1}) samples [{s0}, {s1}) is outside the "
                                     f"{h} x {w} image")
+        if self.smooth <= 0.0:
+            view = self._view(l0, l1, s0, s1)
+            if view is not None:        # pixels in memory, none invalid: no copy, nothing cached
+                return view
         hit = _CACHE.find(self._owner, l0, l1, s0, s1) if _CACHE.max_bytes else None
         if hit is None:
             bounds = (max(l0 - _PAD, 0), min(l1 + _PAD, h), max(s0 - _PAD, 0), min(s1 + _PAD, w))
@@ -180,9 +184,19 @@ class WindowedImage:
         sm = _smooth(self._raw(a0, a1, b0, b1), self.smooth)
         return np.ascontiguousarray(sm[l0 - a0:l1 - a0, s0 - b0:s1 - b0])
 
+    def _view(self, l0: int, l1: int, s0: int, s1: int) -> Array | None:
+        """Raw pixels as a read-only view of a source in memory that has no invalid pixel, else ``None``."""
+        if self._base is not None:
+            return None
+        view = getattr(self.source, "view", None)
+        return None if view is None else view(l0, l1, s0, s1, self.saturation if self._level == 0 else None)
+
     def _raw(self, l0: int, l1: int, s0: int, s1: int) -> Array:
         if self._base is not None:
             return self._derived(l0, l1, s0, s1)
+        v = self._view(l0, l1, s0, s1)
+        if v is not None:
+            return v
         a = self.source.read(l0, l1, s0, s1)
         if self._level == 0:
             bad = ~np.isfinite(a)
