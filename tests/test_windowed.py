@@ -175,6 +175,35 @@ def test_resamplers_give_the_whole_images_values_bit_for_bit(invalid):
     assert bilinear(win, 10.2, 20.7) == bilinear(img, 10.2, 20.7)        # 0-d in, 0-d out
 
 
+@pytest.mark.parametrize("sigma", [0.7, 1.0, 2.0])
+@pytest.mark.parametrize("invalid", [True, False])
+def test_smoothed_regions_computed_where_needed_are_scipy_s_smoothing_bit_for_bit(sigma, invalid):
+    from scipy.ndimage import gaussian_filter
+
+    img = _image((300, 260), seed=8)
+    if invalid:
+        img[40:44, 50:53] = np.nan
+        img[0, 7] = np.nan
+    # the oracle: scipy on the whole image, NaN-aware by normalised convolution where NaN pixels are
+    bad = ~np.isfinite(img)
+    num = gaussian_filter(np.where(bad, 0.0, img), sigma, mode="nearest")
+    den = gaussian_filter((~bad).astype(float), sigma, mode="nearest")
+    ref = np.where(bad, np.nan, num / den) if invalid else gaussian_filter(img, sigma, mode="nearest")
+    sm = WindowedImage(img).smoothed(sigma)
+    assert sm.fills_on_demand
+    # whole regions, at the edges and inside
+    for l0, l1, s0, s1 in ((0, 300, 0, 260), (30, 61, 40, 75), (281, 300, 0, 9), (5, 6, 250, 260)):
+        assert np.array_equal(sm.region(l0, l1, s0, s1), ref[l0:l1, s0:s1], equal_nan=True)
+    # only the boxes asked for, in a larger region that is then filled further
+    sm = WindowedImage(img).smoothed(sigma)
+    need = np.array([[100, 113, 20, 31], [0, 4, 255, 260], [190, 191, 130, 150]])
+    got = sm.region(0, 300, 0, 260, need=need)
+    for l0, l1, s0, s1 in need:
+        assert np.array_equal(got[l0:l1, s0:s1], ref[l0:l1, s0:s1], equal_nan=True)
+    got = sm.region(60, 140, 10, 90)
+    assert np.array_equal(got, ref[60:140, 10:90], equal_nan=True) and not got.flags.writeable
+
+
 @pytest.fixture(scope="module")
 def pair():
     dtm, alb = synthetic_scene(30.0, 0.0, 250.0, 0.5, seed=3)

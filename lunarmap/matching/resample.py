@@ -40,7 +40,7 @@ def _by_region(fn: Any, image: Any, line: ArrayLike, sample: ArrayLike, before: 
     Each group of coordinate rows is sampled in its own region, shifted by the region's integer
     origin (exact in floating point), so the values are those ``fn`` gives on the whole image.
     """
-    from .windowed import region_groups
+    from .windowed import stencil_regions
 
     y = np.asarray(line, dtype=float)
     x = np.asarray(sample, dtype=float)
@@ -48,8 +48,11 @@ def _by_region(fn: Any, image: Any, line: ArrayLike, sample: ArrayLike, before: 
     shape = y.shape
     yy, xx = (np.atleast_1d(y), np.atleast_1d(x)) if y.ndim else (y.reshape(1), x.reshape(1))
     outs = [np.full(yy.shape, np.nan) for _ in range(n_out)]
-    for rows, (a0, a1, b0, b1) in region_groups(yy - 0.5, xx - 0.5, image.shape, before, after):
-        res = fn(image.region(a0, a1, b0, b1), yy[rows] - a0, xx[rows] - b0)
+    partial = getattr(image, "fills_on_demand", False)
+    for rows, (a0, a1, b0, b1), need in stencil_regions(yy - 0.5, xx - 0.5, image.shape, before, after):
+        # an image that computes its pixels on demand (smoothed) is told which ones the stencils read
+        reg = image.region(a0, a1, b0, b1, need=need) if partial else image.region(a0, a1, b0, b1)
+        res = fn(reg, yy[rows] - a0, xx[rows] - b0)
         for o, r in zip(outs, res if n_out > 1 else (res,)):
             o[rows] = r
     outs = [o.reshape(shape) for o in outs]
