@@ -249,12 +249,11 @@ class WindowedImage:
         means of block means, in the same order.
         """
         if self._parent is not None:
-            a = self._parent.region(2 * l0, 2 * l1, 2 * s0, 2 * s1)
-            return 0.25 * (a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2])
+            return _reduce(self._parent.region(2 * l0, 2 * l1, 2 * s0, 2 * s1))
         f = 2 ** self._level
         a = self._base._raw(l0 * f, l1 * f, s0 * f, s1 * f)  # type: ignore[union-attr]
         for _ in range(self._level):
-            a = 0.25 * (a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2])
+            a = _reduce(a)
         return a
 
     # -- derived images ----------------------------------------------------------------------
@@ -517,13 +516,22 @@ def stencil_regions(y: Array, x: Array, shape: Sequence[int], before: int, after
     n = y.shape[0]
     yy = y.reshape(n, -1)
     xx = x.reshape(n, -1)
-    fin = np.isfinite(yy) & np.isfinite(xx)
-    has = fin.any(axis=1)
-    with np.errstate(invalid="ignore"):
-        lo_y = np.floor(np.where(fin, yy, np.inf).min(axis=1)) - before
-        hi_y = np.floor(np.where(fin, yy, -np.inf).max(axis=1)) + after
-        lo_x = np.floor(np.where(fin, xx, np.inf).min(axis=1)) - before
-        hi_x = np.floor(np.where(fin, xx, -np.inf).max(axis=1)) + after
+    if _extents_kernel is not None:
+        # one pass over the coordinates (least-squares matching asks this of (128, 225) arrays every iteration)
+        ext = np.empty((n, 4))
+        _extents_kernel(np.ascontiguousarray(yy, dtype=float), np.ascontiguousarray(xx, dtype=float), ext)
+        has: NDArray[np.bool_] = np.isfinite(ext[:, 0])
+        with np.errstate(invalid="ignore"):
+            lo_y, hi_y = np.floor(ext[:, 0]) - before, np.floor(ext[:, 1]) + after
+            lo_x, hi_x = np.floor(ext[:, 2]) - before, np.floor(ext[:, 3]) + after
+    else:  # pragma: no cover - without numba
+        fin = np.isfinite(yy) & np.isfinite(xx)
+        has = np.asarray(fin.any(axis=1))
+        with np.errstate(invalid="ignore"):
+            lo_y = np.floor(np.where(fin, yy, np.inf).min(axis=1)) - before
+            hi_y = np.floor(np.where(fin, yy, -np.inf).max(axis=1)) + after
+            lo_x = np.floor(np.where(fin, xx, np.inf).min(axis=1)) - before
+            hi_x = np.floor(np.where(fin, xx, -np.inf).max(axis=1)) + after
     # a row whose stencils lie wholly outside the image samples nothing there
     use = has & (lo_y <= h - 1) & (hi_y >= 0) & (lo_x <= w - 1) & (hi_x >= 0)
     lo_y, lo_x = np.clip(lo_y, 0, h - 1), np.clip(lo_x, 0, w - 1)
@@ -547,4 +555,47 @@ def stencil_regions(y: Array, x: Array, shape: Sequence[int], before: int, after
         order = np.argsort(c, kind="stable")
         half = r.size // 2
         stack += [r[order[half:]], r[order[:half]]]
+    return out
+
+
+def _extents_py(yy: Array, xx: Array, ext: Array) -> None:
+    """Per row: the least and largest ``yy`` and ``xx`` where both are finite (NaN where none is)."""
+    for b in range(yy.shape[0]):
+        y0 = np.inf
+        y1 = -np.inf
+        x0 = np.inf
+        x1 = -np.inf
+        for i in range(yy.shape[1]):
+            y = yy[b, i]
+            x = xx[b, i]
+            if np.isfinite(y) and np.isfinite(x):
+                y0 = min(y0, y)
+                y1 = max(y1, y)
+                x0 = min(x0, x)
+                x1 = max(x1, x)
+        if y0 == np.inf:
+            ext[b, 0] = ext[b, 1] = ext[b, 2] = ext[b, 3] = np.nan
+        else:
+            ext[b, 0], ext[b, 1], ext[b, 2], ext[b, 3] = y0, y1, x0, x1
+
+
+_extents_kernel: Any = numba.njit(cache=True, nogil=True)(_extents_py) if numba is not None else None
+
+
+def _reduce_py(a: Array, out: Array) -> None:
+    """2 x 2 block means, summed as ``build_pyramid``'s ``downsample``: ((a00 + a10) + a01) + a11, times 0.25."""
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            out[i, j] = 0.25 * (((a[2 * i, 2 * j] + a[2 * i + 1, 2 * j]) + a[2 * i, 2 * j + 1]) + a[2 * i + 1, 2 * j + 1])
+
+
+_reduce_kernel: Any = numba.njit(cache=True, nogil=True)(_reduce_py) if numba is not None else None
+
+
+def _reduce(a: Array) -> Array:
+    """One pyramid step of an even-sized region (compiled: one pass, no temporaries; the same values)."""
+    if _reduce_kernel is None:  # pragma: no cover - without numba
+        return 0.25 * (a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2])
+    out = np.empty((a.shape[0] // 2, a.shape[1] // 2))
+    _reduce_kernel(a, out)
     return out
