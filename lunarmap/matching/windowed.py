@@ -9,7 +9,9 @@ interior edges lie beyond every stencil, so even the clamps and the NaN propagat
 Invalid and saturated pixels become NaN as :func:`~lunarmap.matching.pairs.as_array` makes them;
 least-squares matching's Gaussian pre-smoothing (:meth:`WindowedImage.smoothed`) is computed on
 each region with an apron of the filter's radius, so the smoothed values are those of the
-smoothed whole image. Pyramid levels come from a stored :class:`~lunarmap.io.pyramid.Pyramid`
+smoothed whole image (with numba only in the tiles of the region that the callers' stencils read:
+``need`` of :meth:`WindowedImage.region`). Pixels held in memory without an invalid pixel are read
+as views, neither copied nor cached. Pyramid levels come from a stored :class:`~lunarmap.io.pyramid.Pyramid`
 or, without one, are block means of the cached regions of the level above (the same values as
 ``build_pyramid``'s; issue 32, item 5: not each level's regions reduced again from level 0).
 
