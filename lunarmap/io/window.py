@@ -100,12 +100,13 @@ class ArraySource:
 
     def _valid(self, saturation: float | None) -> bool:
         key = None if saturation is None else float(saturation)
-        known = self._validity.get(key)
+        validity: dict[float | None, bool] = self.__dict__.setdefault("_validity", {})   # sources pickled before it
+        known = validity.get(key)
         if known is None:
             px = self.pixels
             known = bool(px.dtype == np.float64 and px.size and np.isfinite(px).all()
                          and (key is None or px.max() < key))
-            self._validity[key] = known
+            validity[key] = known
         return known
 
     def __repr__(self) -> str:
