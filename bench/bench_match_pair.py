@@ -172,8 +172,8 @@ STAGES = {  # a function's file and name -> stage (cumulative time of the outerm
     "LSM": [("lsm.py", "lsm_match")],
     "  LSM resampling (bicubic)": [("resample.py", "bicubic_with_gradient")],
     "  LSM covariance": [("lsm.py", "_covariance")],
-    "  LSM smoothing": [("lsm.py", "_smooth")],
-    "pixels read (regions, pyramid levels)": [("windowed.py", "_compute")],
+    "  LSM smoothing": [("lsm.py", "_smooth"), ("windowed.py", "fill")],
+    "pixels read (regions, pyramid levels)": [("windowed.py", "_compute"), ("windowed.py", "_lazy")],
     "RANSAC": [("ransac.py", "ransac_local_affine")],
     "overlap / cameras": [("steps.py", "_overlap"), ("steps.py", "_camera")],
 }

@@ -13,7 +13,7 @@ import xarray as xr
 from lunarmap.errors import ImageWindowError, InvalidInputError, PyramidError
 from lunarmap.io import write_cube
 from lunarmap.io.pyramid import Pyramid, pyramid_shapes, write_pyramid
-from lunarmap.io.window import ArraySource, PixelSource, open_source
+from lunarmap.io.window import ArraySource, PixelSource
 from lunarmap.matching import MatchParams, TiePointParams, foerstner, match_points
 from lunarmap.matching.pyramid import build_pyramid
 from lunarmap.matching.resample import bicubic, bicubic_with_gradient, bilinear
@@ -97,6 +97,27 @@ def test_windows_outside_and_damaged_files_are_named(tmp_path):
         ArraySource(np.zeros(5))
 
 
+def test_pixels_in_memory_are_viewed_only_where_no_pixel_needs_masking():
+    img = _image((40, 50), seed=3)
+    v = ArraySource(img).view(3, 20, 5, 31)
+    assert np.shares_memory(v, img) and not v.flags.writeable and np.array_equal(v, img[3:20, 5:31])
+    assert ArraySource(img).view(3, 20, 5, 31, saturation=float(img.max())) is None     # a saturated pixel
+    assert ArraySource(img).view(0, 40, 0, 50, saturation=float(img.max()) + 1.0) is not None
+    assert ArraySource(img.astype(np.float32)).view(0, 4, 0, 4) is None                 # not float64
+    bad = img.copy()
+    bad[39, 49] = np.inf
+    assert ArraySource(bad).view(0, 4, 0, 4) is None
+    with pytest.raises(ImageWindowError, match="outside"):
+        ArraySource(img).view(0, 41, 0, 4)
+    # a windowed image serves them as they are, caching nothing; masked images as before
+    win = WindowedImage(img)
+    before = cache_info()["regions"]
+    assert np.shares_memory(win.region(2, 9, 4, 30), img) and cache_info()["regions"] == before
+    sat = WindowedImage(img, saturation=float(img.max()))
+    got = sat.region(0, 40, 0, 50)
+    assert not np.shares_memory(got, img) and np.isnan(got).sum() == 1
+
+
 # -- pyramids --------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("integer", [True, False])
@@ -135,10 +156,12 @@ def test_pyramid_of_another_image_or_damaged_is_refused(tmp_path):
 
 # -- the resamplers on windowed images ------------------------------------------------------------
 
-def test_resamplers_give_the_whole_images_values_bit_for_bit():
+@pytest.mark.parametrize("invalid", [True, False])    # False: regions are views of the image, not copies
+def test_resamplers_give_the_whole_images_values_bit_for_bit(invalid):
     rng = np.random.default_rng(4)
     img = _image((300, 260))
-    img[40:44, 50:53] = np.nan
+    if invalid:
+        img[40:44, 50:53] = np.nan
     win = WindowedImage(img)
     # points everywhere: inside, on integer coordinates, at and beyond the edges, NaN
     line = np.concatenate([rng.uniform(-3, 303, 4000), np.arange(0, 300.5, 0.5), [np.nan, 1.5, 299.5]])
@@ -150,6 +173,35 @@ def test_resamplers_give_the_whole_images_values_bit_for_bit():
             for x, y in zip(a if isinstance(a, tuple) else (a,), b if isinstance(b, tuple) else (b,)):
                 assert np.array_equal(x, y, equal_nan=True), fn.__name__
     assert bilinear(win, 10.2, 20.7) == bilinear(img, 10.2, 20.7)        # 0-d in, 0-d out
+
+
+@pytest.mark.parametrize("sigma", [0.7, 1.0, 2.0])
+@pytest.mark.parametrize("invalid", [True, False])
+def test_smoothed_regions_computed_where_needed_are_scipy_s_smoothing_bit_for_bit(sigma, invalid):
+    from scipy.ndimage import gaussian_filter
+
+    img = _image((300, 260), seed=8)
+    if invalid:
+        img[40:44, 50:53] = np.nan
+        img[0, 7] = np.nan
+    # the oracle: scipy on the whole image, NaN-aware by normalised convolution where NaN pixels are
+    bad = ~np.isfinite(img)
+    num = gaussian_filter(np.where(bad, 0.0, img), sigma, mode="nearest")
+    den = gaussian_filter((~bad).astype(float), sigma, mode="nearest")
+    ref = np.where(bad, np.nan, num / den) if invalid else gaussian_filter(img, sigma, mode="nearest")
+    sm = WindowedImage(img).smoothed(sigma)
+    assert sm.fills_on_demand
+    # whole regions, at the edges and inside
+    for l0, l1, s0, s1 in ((0, 300, 0, 260), (30, 61, 40, 75), (281, 300, 0, 9), (5, 6, 250, 260)):
+        assert np.array_equal(sm.region(l0, l1, s0, s1), ref[l0:l1, s0:s1], equal_nan=True)
+    # only the boxes asked for, in a larger region that is then filled further
+    sm = WindowedImage(img).smoothed(sigma)
+    need = np.array([[100, 113, 20, 31], [0, 4, 255, 260], [190, 191, 130, 150]])
+    got = sm.region(0, 300, 0, 260, need=need)
+    for l0, l1, s0, s1 in need:
+        assert np.array_equal(got[l0:l1, s0:s1], ref[l0:l1, s0:s1], equal_nan=True)
+    got = sm.region(60, 140, 10, 90)
+    assert np.array_equal(got, ref[60:140, 10:90], equal_nan=True) and not got.flags.writeable
 
 
 @pytest.fixture(scope="module")
@@ -375,6 +427,10 @@ def test_derived_levels_read_level_0_once_per_region():
         def read(self, l0, l1, s0, s1):
             calls.append((l1 - l0) * (s1 - s0))
             return super().read(l0, l1, s0, s1)
+
+        def view(self, l0, l1, s0, s1, saturation=None):      # pixels in memory are seen without a copy
+            calls.append((l1 - l0) * (s1 - s0))
+            return super().view(l0, l1, s0, s1, saturation)
 
     pyr = WindowedImage(Counting(img)).pyramid(3)
     whole = pyr[1].region(0, 128, 0, 128)

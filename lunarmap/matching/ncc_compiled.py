@@ -190,7 +190,7 @@ def affine_windows(image: Any, cl: Array, cs: Array, a: Array, r: int) -> Array:
     map over a square lie on its corners; one pixel more on every side against rounding).
     """
     from .resample import _windowed
-    from .windowed import region_groups
+    from .windowed import stencil_regions
 
     b = cl.size
     m = 2 * r + 1
@@ -205,8 +205,12 @@ def affine_windows(image: Any, cl: Array, cs: Array, a: Array, r: int) -> Array:
     v = np.array([-r, r, -r, r], dtype=float)
     yl = cl[:, None] + a[:, 0, 0, None] * u + a[:, 0, 1, None] * v
     xs = cs[:, None] + a[:, 1, 0, None] * u + a[:, 1, 1, None] * v
-    for rows, (a0, a1, b0, b1) in region_groups(yl - 0.5, xs - 0.5, image.shape, 1, 2):
-        reg = np.ascontiguousarray(image.region(a0, a1, b0, b1), dtype=float)
+    partial = getattr(image, "fills_on_demand", False)
+    for rows, (a0, a1, b0, b1), need in stencil_regions(yl - 0.5, xs - 0.5, image.shape, 1, 2):
+        # a view into the cached region or the image in memory: the kernel reads it strided (no copy); an
+        # image that computes its pixels on demand (smoothed) is told which ones the windows read
+        reg = np.asarray(image.region(a0, a1, b0, b1, need=need) if partial else image.region(a0, a1, b0, b1),
+                         dtype=float)
         sub = np.empty((rows.size, m, m))
         _affine_kernel(reg, cl[rows], cs[rows], a[rows], r, a0 + 0.5, b0 + 0.5, sub)
         out[rows] = sub

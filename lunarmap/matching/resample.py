@@ -40,7 +40,7 @@ def _by_region(fn: Any, image: Any, line: ArrayLike, sample: ArrayLike, before: 
     Each group of coordinate rows is sampled in its own region, shifted by the region's integer
     origin (exact in floating point), so the values are those ``fn`` gives on the whole image.
     """
-    from .windowed import region_groups
+    from .windowed import stencil_regions
 
     y = np.asarray(line, dtype=float)
     x = np.asarray(sample, dtype=float)
@@ -48,8 +48,11 @@ def _by_region(fn: Any, image: Any, line: ArrayLike, sample: ArrayLike, before: 
     shape = y.shape
     yy, xx = (np.atleast_1d(y), np.atleast_1d(x)) if y.ndim else (y.reshape(1), x.reshape(1))
     outs = [np.full(yy.shape, np.nan) for _ in range(n_out)]
-    for rows, (a0, a1, b0, b1) in region_groups(yy - 0.5, xx - 0.5, image.shape, before, after):
-        res = fn(image.region(a0, a1, b0, b1), yy[rows] - a0, xx[rows] - b0)
+    partial = getattr(image, "fills_on_demand", False)
+    for rows, (a0, a1, b0, b1), need in stencil_regions(yy - 0.5, xx - 0.5, image.shape, before, after):
+        # an image that computes its pixels on demand (smoothed) is told which ones the stencils read
+        reg = image.region(a0, a1, b0, b1, need=need) if partial else image.region(a0, a1, b0, b1)
+        res = fn(reg, yy[rows] - a0, xx[rows] - b0)
         for o, r in zip(outs, res if n_out > 1 else (res,)):
             o[rows] = r
     outs = [o.reshape(shape) for o in outs]
@@ -135,8 +138,25 @@ def _cubic_setup(image: NDArray, line: ArrayLike, sample: ArrayLike) -> tuple[
     # Truncation equals floor here (yc, xc >= 1).
     i = np.minimum(yc.astype(np.intp), h - 3)
     j = np.minimum(xc.astype(np.intp), w - 3)
-    base = (i - 1) * w + (j - 1)
-    return img.ravel(), base, yc - i, xc - j, inside, w, shape
+    flat, step = _flat(img)
+    base = (i - 1) * step + (j - 1)
+    return flat, base, yc - i, xc - j, inside, step, shape
+
+
+def _flat(img: Array) -> tuple[Array, int]:
+    """The pixels as one flat array and its step from one line to the next (elements).
+
+    A view with contiguous lines (a window of a cached region or of an image in memory) is read in
+    place, its lines ``step`` apart in the array it views: no copy of the region (issue 32, item 5).
+    """
+    h, w = img.shape
+    s0, s1 = img.strides
+    if img.flags.c_contiguous or h == 1 or s1 != img.itemsize or s0 % img.itemsize or s0 < w * img.itemsize:
+        return img.ravel(), w
+    step = s0 // img.itemsize
+    flat = np.lib.stride_tricks.as_strided(img, shape=((h - 1) * step + w,), strides=(img.itemsize,),
+                                           writeable=False)
+    return flat, step
 
 
 def bicubic(image: NDArray, line: ArrayLike, sample: ArrayLike) -> Array:
