@@ -33,6 +33,7 @@ from ..camera.corrections import FrameCorrections, LineScanCorrections, PushFram
 from ..camera.geodesy import enu_basis, xyz_to_lonlat_height
 from ..camera.sensor import SensorModel
 from ..errors import AdjustmentInputError, UnobservedParameterError
+from .altimetry import AltimetryObservations, LaserAltimetry, altimetry_observations
 from .intersection import intersect_points
 from .navigation import NavigationObservations
 from .network import ControlNetwork, network_from_tiepoints
@@ -165,6 +166,8 @@ class Block:
     navigation : NavigationObservations or None
     terrain : list of DtmHeights
         The reference-DTM terms (one per DTM), in the order given.
+    altimetry : list of AltimetryObservations
+        The laser-altimetry terms (one per instrument), in the order given.
     starts : xarray.Dataset or None
         The start-value decisions of :func:`build_block` (points started from a best guess, and why).
     """
@@ -178,6 +181,7 @@ class Block:
     #: points whose intersection failed its bounds and were started from a best guess, with why
     #: (:func:`~lunarmap.adjust.start.screen_starts`); None for a block not built by :func:`build_block`
     starts: xr.Dataset | None = None
+    altimetry: list[AltimetryObservations] = field(default_factory=list)
 
     @property
     def sensors(self) -> dict[str, SensorModel]:
@@ -187,7 +191,8 @@ class Block:
 def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr.Dataset, *, degree: int = 1,
                 navigation: NavigationSpec | None = None, times: Mapping[str, float] | None = None,
                 representation: str = "covariance", terrain: Sequence[ReferenceDtm] = (),
-                unintersectable: str = "raise", max_range: float = MAX_RANGE) -> Block:
+                unintersectable: str = "raise", max_range: float = MAX_RANGE,
+                altimetry: Sequence[LaserAltimetry] = ()) -> Block:
     """Build an adjustment block (see the module docstring).
 
     Parameters
@@ -216,6 +221,10 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
         control to judge its rays (:func:`~lunarmap.adjust.start.screen_starts`).
     max_range : float
         The distance bound of an intersection, times its camera's height above the reference sphere.
+    altimetry : sequence of LaserAltimetry
+        Laser-altimetry shots observing the surface the tie points span (:mod:`lunarmap.adjust.altimetry`),
+        with an offset (and drift) per track; shots outside the points' triangulation are skipped
+        (``block.altimetry[k].skipped``). The block is then solved on its whole normal equations.
 
     Returns
     -------
@@ -234,6 +243,8 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
         A camera whose distortion has no partial derivatives.
     DtmCrsError, DtmCoverageError, TerrainInputError
         A reference DTM without a Moon CRS, covering no tie point, or unreadable.
+    AltimetryInputError, AltimetryCoverageError
+        A bad shot table, or no shot inside the tie points' triangulation.
     """
     net = network_from_tiepoints(network) if isinstance(network, xr.Dataset) else network
     if not isinstance(net, ControlNetwork):
@@ -289,8 +300,15 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
         cand = np.isin(net.point_type, list(ref.point_types))
         dtms.append(dtm_heights(ref, X0, model.n_images * model.n_params, model.n_images, cand, net.point_id))
     terms += dtms
+    alts = []
+    for alt in altimetry:
+        if not isinstance(alt, LaserAltimetry):
+            raise AdjustmentInputError(f"altimetry must be LaserAltimetry objects, got {type(alt).__name__}")
+        cand = np.isin(net.point_type, list(alt.point_types))
+        alts.append(altimetry_observations(alt, X0, model.n_images * model.n_params, model.n_images, cand))
+    terms += alts
     problem = net.to_problem(model, params0, points=X0, terms=terms, representation=representation)
-    return Block(names, model, net, problem, nav, dtms, starts)
+    return Block(names, model, net, problem, nav, dtms, starts, alts)
 
 
 @dataclass

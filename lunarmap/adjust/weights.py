@@ -68,7 +68,8 @@ class ScaledTerm:
     def linearize(self, cam_params: NDArray, extra: NDArray, points: NDArray | None = None):
         if getattr(self.term, "uses_points", False):     # a point-observing term (reference DTM heights)
             r, J, Jp = self.term.linearize(cam_params, extra, points)
-            return r / self.factor, (self._scale @ sp.csr_matrix(J)).tocsr(), Jp / self.factor[:, None]
+            f = self.factor.reshape((-1,) + (1,) * (np.ndim(Jp) - 1))   # (m, 3) or (m, k, 3) partials
+            return r / self.factor, (self._scale @ sp.csr_matrix(J)).tocsr(), Jp / f
         r, J = self.term.linearize(cam_params, extra)
         return r / self.factor, (self._scale @ sp.csr_matrix(J)).tocsr()
 

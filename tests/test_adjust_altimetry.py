@@ -1,0 +1,230 @@
+"""Laser altimetry (LOLA-like tracks) as observations in the block adjustment (issue 30, item 2): the shot
+table reader's named errors, the observation's partials against central differences, and a block without
+control points whose navigation has per-orbit errors, adjusted with simulated tracks, against the
+simulation's truth (tie points' radii, track offsets, posterior sigmas, the altimeter's variance component,
+gross shots found by data snooping)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import xarray as xr
+
+import lunarmap
+from lunarmap.adjust import (
+    ControlNetwork,
+    LaserAltimetry,
+    NavigationSpec,
+    SolverOptions,
+    altimetry_observations,
+    merge_networks,
+    network_from_tiepoints,
+)
+from lunarmap.camera.geodesy import lonlat_height_to_xyz, xyz_to_lonlat_height
+from lunarmap.camera.shape import MOON_RADIUS
+from lunarmap.errors import AltimetryCoverageError, AltimetryInputError
+from lunarmap.io import AltimetryShots, read_altimetry, write_altimetry
+from lunarmap.simulate import altimetry_tracks, frame_block, frame_block_height
+
+#: relief of the synthetic terrain (m): its curvature with the tie points' ~8 km spacing bounds the
+#: triangulated surface's error by kappa h^2 / 8 ~ 0.8 m (the interpolation sigma given below)
+RELIEF = 50.0
+INTERP_SIGMA = 1.0
+SHOT_SIGMA = 0.5
+OFFSET_SIGMA = 30.0
+#: every 20th LOLA shot (1140 m instead of 57 m along track): the test's run time; 5 spots each
+ALONG_M = 1140.0
+
+
+def _block(seed: int):
+    """Fore/aft frame block, no control points, check points, navigation with per-orbit errors."""
+    sb = frame_block(orbits=2, per_orbit=8, points=300, n_control=0, n_check=15, seed=seed, relief=RELIEF,
+                     cameras=2, tilt_deg=(-15.0, 15.0), forward_overlap=0.3)
+    m = sb.measurements
+    names = [f"img{i:02d}" for i in range(len(sb.nav_cameras))]
+    chk = np.zeros(sb.true_points.shape[0], bool)
+    chk[sb.check] = True
+    tie = ~chk[m.pt_idx]
+    ties = xr.Dataset({"point_id": ("observation", m.pt_idx[tie]), "image_id": ("observation", m.cam_idx[tie]),
+                       "line": ("observation", m.xy[tie, 0]), "sample": ("observation", m.xy[tie, 1]),
+                       "sigma_line": ("observation", np.full(tie.sum(), m.sigma)),
+                       "sigma_sample": ("observation", np.full(tie.sum(), m.sigma))}, coords={"image": names})
+    sel = np.isin(m.pt_idx, sb.check)
+    remap = {int(j): k for k, j in enumerate(sb.check)}
+    cnet = ControlNetwork([f"C{j}" for j in sb.check], ["check"] * sb.check.size, sb.true_points[sb.check],
+                          [remap[int(j)] for j in m.pt_idx[sel]], m.cam_idx[sel], m.xy[sel],
+                          np.full((sel.sum(), 2), m.sigma), names)
+    net = merge_networks(network_from_tiepoints(ties), cnet)
+    spec = NavigationSpec(orbit=dict(zip(names, sb.orbit.tolist())), position_sigma=sb.nav_sigma[3],
+                          attitude_sigma=sb.nav_sigma[0], offset="observed", drift="observed",
+                          offset_sigma=sb.offset_sigma, drift_sigma=sb.drift_sigma)
+    # truth of every network point, by its id ("tp<j>" tie, "C<j>" check)
+    truth = sb.true_points[[int(str(p).replace("tp", "").replace("C", "")) for p in net.point_id]]
+    return sb, net, dict(zip(names, sb.nav_cameras)), spec, {n: float(t) for n, t in zip(names, sb.times)}, truth
+
+
+def _tracks(sb, seed: int, gross: float = 0.0):
+    lon, lat, _ = xyz_to_lonlat_height(sb.true_points, MOON_RADIUS)
+    return altimetry_tracks(lambda lo, la: frame_block_height(lo, la, RELIEF), (lon.min(), lon.max()),
+                            (lat.min(), lat.max()), 24, along_track_m=ALONG_M, sigma=SHOT_SIGMA,
+                            offset_sigma=OFFSET_SIGMA, heading_deg=20.0, gross_fraction=gross, seed=seed)
+
+
+def _radial(X, truth):
+    u = truth / np.linalg.norm(truth, axis=1)[:, None]
+    return np.sum((X - truth) * u, axis=1)
+
+
+def run_block(seed: int, sigma_factor: float = 1.0, gross: float = 0.0, vc: bool = True):
+    """Navigation alone and with altimetry (variance components of images and altimeter estimated); the
+    figures against the truth."""
+    sb, net, sensors, spec, times, truth = _block(seed)
+    out: dict = {}
+    b0 = lunarmap.build_block(sensors, net, navigation=spec, times=times)
+    r0 = lunarmap.solve(b0, SolverOptions(ftol=1e-10)).result
+    sim = _tracks(sb, seed, gross)
+    alt = LaserAltimetry(sim.shots, sigma_m=SHOT_SIGMA * sigma_factor, interpolation_sigma_m=INTERP_SIGMA * sigma_factor,
+                         offset_sigma_m=OFFSET_SIGMA)
+    b1 = lunarmap.build_block(sensors, net, navigation=spec, times=times, altimetry=[alt])
+    term = b1.altimetry[0]
+    if vc:
+        from lunarmap.adjust import estimate_variance_components, observation_groups
+
+        groups = observation_groups(b1.problem, navigation=False)
+        comp = estimate_variance_components(b1.problem, groups, SolverOptions(ftol=1e-10))
+        r1 = comp.result
+        k = list(comp.names).index(term.name)
+        out["vc_scale"], out["vc_scale_sigma"] = float(comp.scale[k]), float(comp.scale_sigma[k])
+        out["vc_redundancy"] = float(comp.redundancy[k])
+    else:
+        r1 = lunarmap.solve(b1, SolverOptions(ftol=1e-10)).result
+    tie = net.point_type == "tie"
+    rad0, rad1 = _radial(r0.points[tie], truth[tie]), _radial(r1.points[tie], truth[tie])
+    observed = np.zeros(net.n_points, bool)
+    observed[term.shot_point_index.ravel()] = True
+    obs_t = observed[tie]
+    prec = r1.precision()
+    err = r1.points - truth
+    C = prec.pt_cov
+    z2 = np.einsum("ki,kij,kj->k", err[tie], np.linalg.inv(C[tie]), err[tie])
+    s = sum(t.n_extra for t in b1.problem.terms[:-1])
+    off = r1.state.extra[s:s + term.n_tracks]
+    sig = np.sqrt(np.diag(prec.extra_cov)[s:s + term.n_tracks])
+    true_off = sim.offsets[np.searchsorted(sim.track_names, term.track_names)]
+    chk = net.point_type == "check"
+    out.update(
+        tie_radial_rms_nav=float(np.sqrt(np.mean(rad0 ** 2))), tie_radial_rms_alt=float(np.sqrt(np.mean(rad1 ** 2))),
+        observed_radial_rms_alt=float(np.sqrt(np.mean(rad1[obs_t] ** 2))),
+        tie_3d_rms_nav=float(np.sqrt(np.mean(np.sum((r0.points - truth)[tie] ** 2, axis=1)))),
+        tie_3d_rms_alt=float(np.sqrt(np.mean(np.sum(err[tie] ** 2, axis=1)))),
+        check_3d_rms_nav=float(np.sqrt(np.mean(np.sum((r0.points - truth)[chk] ** 2, axis=1)))),
+        check_3d_rms_alt=float(np.sqrt(np.mean(np.sum(err[chk] ** 2, axis=1)))),
+        tie_normalized_rms=float(np.sqrt(np.mean(z2) / 3.0)),
+        offsets_within_2sigma=float(np.mean(np.abs(off - true_off) <= 2.0 * sig)),
+        offsets_normalized_rms=float(np.sqrt(np.mean(((off - true_off) / sig) ** 2))),
+        offset_mean_error=float(np.mean(off - true_off)), offset_sigma_median=float(np.median(sig)),
+        sigma0=float(r1.sigma0), shots=int(term.n_shots), skipped=int(term.skipped), tracks=int(term.n_tracks))
+    return out, (b1, r1, sim, term)
+
+
+@pytest.fixture(scope="module")
+def adjusted():
+    return run_block(3)
+
+
+# --- the reader -----------------------------------------------------------------------------------
+
+def _table(n=6):
+    return AltimetryShots(np.array(["a"] * 3 + ["b"] * (n - 3)), np.arange(n, dtype=float), np.linspace(10, 10.1, n),
+                          np.linspace(5, 5.1, n), np.full(n, 1737.4e3), np.full(n, 0.5))
+
+
+@pytest.mark.parametrize("ext", [".csv", ".nc"])
+def test_shot_tables_round_trip(tmp_path, ext):
+    shots = _table()
+    p = write_altimetry(tmp_path / f"shots{ext}", shots)
+    back = read_altimetry(p)
+    assert list(back.track) == list(shots.track)
+    for c in ("time", "lon", "lat", "radius", "sigma"):
+        np.testing.assert_allclose(getattr(back, c), getattr(shots, c), rtol=1e-9)
+
+
+def test_bad_shot_tables_are_named(tmp_path):
+    p = tmp_path / "s.csv"
+    p.write_text("track,time,lon,lat\na,0,10,5\n")
+    with pytest.raises(AltimetryInputError, match="missing column.*radius"):
+        read_altimetry(p)
+    p.write_text("track,time,lon,lat,radius\na,0,10,5,1737400\na,1,nan,5,1737400\nb,0,10,5,1737400\nb,2,10,5,1737401\n")
+    with pytest.raises(AltimetryInputError, match="'lon'.*NaN.*row 1"):
+        read_altimetry(p)
+    p.write_text("track,time,lon,lat,radius\na,0,10,5,1737400\na,1,10,5,1737400\nb,0,10,5,1737400\n")
+    with pytest.raises(AltimetryInputError, match="one shot.*'b'"):
+        read_altimetry(p)
+    p.write_text("track,time,lon,lat,radius\na,0,10,5,1737.4\na,1,10,5,1737.4\n")
+    with pytest.raises(AltimetryInputError, match="kilometres"):
+        read_altimetry(p)
+    with pytest.raises(AltimetryInputError, match="does not exist"):
+        read_altimetry(tmp_path / "none.csv")
+    with pytest.raises(AltimetryInputError, match="sigma_m"):
+        LaserAltimetry(_table(), sigma_m=0.0)
+
+
+def test_shots_outside_the_tie_points_are_counted_and_none_inside_is_named():
+    rng = np.random.default_rng(1)
+    X = lonlat_height_to_xyz(rng.uniform(10, 10.1, 30), rng.uniform(5, 5.1, 30), np.zeros(30))
+    shots = AltimetryShots(np.repeat(["a", "b"], 4), np.arange(8.0), [10.05, 10.06, 10.07, 30.0] * 2,
+                           [5.05, 5.04, 5.06, 5.05] * 2, np.full(8, MOON_RADIUS))
+    term = altimetry_observations(LaserAltimetry(shots, 1.0), X, 0, 1)
+    assert term.n_shots == 6 and term.skipped == 2 and term.n_tracks == 2
+    far = AltimetryShots(["a", "a"], [0.0, 1.0], [40.0, 40.1], [5.0, 5.0], [MOON_RADIUS] * 2)
+    with pytest.raises(AltimetryCoverageError, match="none of the 2 shots"):
+        altimetry_observations(LaserAltimetry(far, 1.0), X, 0, 1)
+
+
+# --- the observation's partials --------------------------------------------------------------------
+
+@pytest.mark.parametrize("slopes", [False, True])
+def test_partials_match_central_differences(slopes):
+    rng = np.random.default_rng(0)
+    n = 40
+    lon, lat = rng.uniform(9.9, 10.1, n), rng.uniform(4.9, 5.1, n)
+    X = lonlat_height_to_xyz(lon, lat, 300 * np.sin(lon * 30) + 200 * np.cos(lat * 20))
+    ns = 120
+    shots = AltimetryShots(np.array(["A", "B"])[rng.integers(0, 2, ns)], rng.uniform(0, 100, ns),
+                           rng.uniform(9.95, 10.05, ns), rng.uniform(4.95, 5.05, ns), MOON_RADIUS + rng.normal(0, 100, ns))
+    term = altimetry_observations(LaserAltimetry(shots, 1.0, drift=True, offset_sigma_m=5.0, slopes=slopes), X, 0, 1)
+    Xp = X + rng.normal(0, 30, X.shape)           # away from the start: the recomputed weights move
+    ex = np.array([3.0, -2.0, 0.1, 0.05])
+    r, J, Jp = term.linearize(np.zeros(0), ex, Xp)
+    e = 0.05
+    for row in range(0, term.n_shots, 5):
+        for k in range(3):
+            j = term.point_index[row, k]
+            for a in range(3):
+                Y = Xp.copy()
+                Y[j, a] += e
+                rp = term.linearize(np.zeros(0), ex, Y)[0][row]
+                Y[j, a] -= 2 * e
+                rm = term.linearize(np.zeros(0), ex, Y)[0][row]
+                assert abs((rp - rm) / (2 * e) - Jp[row, k, a]) < 1e-6 * max(1.0, abs(Jp[row, k, a]))
+    Jd = J.toarray()
+    for c in range(ex.size):
+        d = np.zeros(ex.size)
+        d[c] = 1e-3
+        num = (term.linearize(np.zeros(0), ex + d, Xp)[0] - term.linearize(np.zeros(0), ex - d, Xp)[0]) / 2e-3
+        np.testing.assert_allclose(num, Jd[:, c], atol=1e-7)
+
+
+# --- the block against the truth -------------------------------------------------------------------
+
+def test_altimetry_pins_the_radii_and_recovers_the_track_offsets(adjusted):
+    f, _ = adjusted
+    print({k: round(v, 3) if isinstance(v, float) else v for k, v in f.items()})
+    assert f["skipped"] > 0 and f["shots"] > 1000
+    # radial: navigation alone leaves the block's radius to its per-orbit offsets and the weak heights
+    assert f["tie_radial_rms_alt"] * 10.0 <= f["tie_radial_rms_nav"]
+    # the tracks' offsets: every track alike (their mean is the block's radius, OFFSET_SIGMA / sqrt(24))
+    assert f["offsets_within_2sigma"] >= 0.9
+    assert 0.6 < f["offsets_normalized_rms"] < 1.4
+    # posterior sigmas of the tie points predict their errors
+    assert 0.8 < f["tie_normalized_rms"] < 1.2
