@@ -810,7 +810,10 @@ def _coupled_precision(result, redundancy: bool, scale_by_sigma0: bool) -> Preci
         quad = np.zeros(A.shape[0])
         for r0 in range(0, A.shape[0], _COUPLED_CHUNK_ROWS):
             Ak = A[r0:r0 + _COUPLED_CHUNK_ROWS]
-            quad[r0:r0 + Ak.shape[0]] = np.asarray(Ak.multiply(sp.csr_matrix(Ak @ Qs)).sum(axis=1)).ravel()
+            D = Ak @ Qs                                                   # (rows, n_free) dense
+            row_of = np.repeat(np.arange(Ak.shape[0]), np.diff(Ak.indptr))
+            quad[r0:r0 + Ak.shape[0]] = np.bincount(row_of, weights=Ak.data * D[row_of, Ak.indices],
+                                                    minlength=Ak.shape[0])
         rr = 1.0 - quad
         o = pb.obs
         red = rr[:2 * o.n].reshape(o.n, 2)

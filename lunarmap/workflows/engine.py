@@ -292,15 +292,19 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
     # the reference DTMs: their parameters and their files' content (a changed DTM reruns the adjustment)
     terrain = [{"name": d.name, "path": str(d.path), "sigma": d.sigma, "slope_baseline": d.slope_baseline}
                for d in cfg.terrain]
+    # the altimeters alike (their shot tables' content in the key)
+    altimetry = [{"name": a.name, "path": str(a.path), "sigma": a.sigma, "interpolation_sigma": a.interpolation_sigma,
+                  "offset_sigma": a.offset_sigma, "drift": a.drift} for a in cfg.altimetry]
     k_adj = step_key("adjust", [cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, groups, names]
                      + ([qc] if qc is not None else [])
                      + ([cfg.points_other_images] if points and cfg.points_other_images != "error" else [])
-                     + ([[{k: v for k, v in d.items() if k != "path"} for d in terrain]] if terrain else []),
+                     + ([[{k: v for k, v in d.items() if k != "path"} for d in terrain]] if terrain else [])
+                     + ([[{k: v for k, v in a.items() if k != "path"} for a in altimetry]] if altimetry else []),
                      [isd_key[n] for n in names] + [k_tie, file_digest(cfg.points) if cfg.points is not None else ""]
-                     + [file_digest(d.path) for d in cfg.terrain])
+                     + [file_digest(d.path) for d in cfg.terrain] + [file_digest(a.path) for a in cfg.altimetry])
     adj = node("adjust", k_adj, adjust_step, store, k_adj, names, groups, [rec[n]["isd"] for n in names], ties,
                points, cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, attrs, qc, cfg.points_other_images,
-               terrain or None, out=[store.path("adjust", k_adj)])
+               terrain or None, altimetry or None, out=[store.path("adjust", k_adj)])
     k_ker = step_key("kernels", None, [k_adj, kernels_digest])
     node("kernels", k_ker, kernels_step, store, k_ker, names, adj, [rec[n]["isd"] for n in names],
          str(cfg.metakernel), out=[store.path("kernels", k_ker) / "kernels.json"])
