@@ -277,5 +277,47 @@ def test_data_snooping_finds_the_gross_shots():
     for d in qc.ledger.decisions:
         if d.kind == "terrain" and d.action == "downweighted":
             flagged[d.index] = True
+    print(f"shots {term.n_shots}, gross {int(gross.sum())}, down-weighted gross {int(np.sum(flagged[:term.n_shots] & gross))}, "
+          f"down-weighted good {int(np.sum(flagged[:term.n_shots] & ~gross))}, rounds {qc.report.summary.get('rounds')}")
     assert np.all(flagged[:term.n_shots][gross])
     assert np.sum(flagged[:term.n_shots] & ~gross) <= 0.1 * gross.sum()
+
+
+# --- the run configuration and the adjust step's summary ---------------------------------------------
+
+def test_run_config_altimetry_tables(tmp_path):
+    from lunarmap.errors import ConfigError
+    from lunarmap.workflows.config import _altimetry_config, _terrain_config
+
+    write_altimetry(tmp_path / "lola.csv", _table())
+    t = {"altimetry": [{"path": "lola.csv", "sigma": 0.5, "interpolation_sigma": 1.0, "offset_sigma": 30.0}]}
+    assert _terrain_config(t, tmp_path, "cfg") == ()          # no DTM: altimetry alone is a terrain section
+    (a,) = _altimetry_config(t, tmp_path, "cfg")
+    assert (a.name, a.group, a.sigma, a.interpolation_sigma, a.offset_sigma, a.drift) == \
+        ("lola", "altimetry lola", 0.5, 1.0, 30.0, False)
+    with pytest.raises(ConfigError, match="interpolation_sigma must be >= 0"):
+        _altimetry_config({"altimetry": [{"path": "lola.csv", "sigma": 0.5, "interpolation_sigma": -1}]}, tmp_path, "c")
+    with pytest.raises(ConfigError, match="at least one"):
+        _terrain_config({}, tmp_path, "cfg")
+    with pytest.raises(ConfigError, match="repeats"):
+        _altimetry_config({"altimetry": [{"path": "lola.csv", "sigma": 0.5}] * 2}, tmp_path, "cfg")
+
+
+def test_adjust_step_summary_reports_the_track_offsets(adjusted):
+    from lunarmap.adjust.block import BlockResult
+    from lunarmap.workflows.steps import _altimetry_outputs
+
+    _, (b1, r1, sim, term) = adjusted
+    sec = _altimetry_outputs(b1, BlockResult(b1, r1), None, [{"name": "lola", "sigma": SHOT_SIGMA}])["lola"]
+    assert sec["shots"] == term.n_shots and len(sec["tracks"]) == term.n_tracks
+    s = sum(t.n_extra for t in b1.problem.terms[:-1])
+    k = 3
+    tr = sec["tracks"][str(term.track_names[k])]
+    assert tr["offset_m"] == pytest.approx(r1.state.extra[s + k])
+    assert tr["offset_sigma_m"] == pytest.approx(np.sqrt(r1.precision().extra_cov[s + k, s + k]))
+    # the group's residual RMS: between the shots' noise and the noise with the surface's interpolation error
+    assert 0.8 * SHOT_SIGMA < sec["rms_residual_m"] < np.hypot(SHOT_SIGMA, INTERP_SIGMA)
+    # the offsets reported are the simulated ones within their sigma (most tracks)
+    z = [(sec["tracks"][str(n)]["offset_m"] - sim.offsets[list(sim.track_names).index(n)])
+         / sec["tracks"][str(n)]["offset_sigma_m"] for n in term.track_names]
+    assert np.mean(np.abs(z) < 2.0) >= 0.9
