@@ -22,7 +22,8 @@ moves the plane at the shot by ``-b_i g`` (``g`` the plane's gradient), so
 A shot whose triangle's vertices have moved so that it left the triangle keeps the plane's (extrapolated,
 continuous) value. Each row couples three points and one track: the rows are not of the one-point kind of a
 reference DTM, and a problem with them is solved on its full sparse normal equations (:mod:`.normal`); its
-precision is the dense inverse of them (blocks of a few thousand unknowns).
+precision is the dense inverse of them (blocks of a few thousand unknowns; at most
+``lunarmap.adjust.precision.COUPLED_DENSE_LIMIT``, else :class:`~lunarmap.errors.AdjustmentInputError`).
 
 The interpolation error: the triangulated surface is the terrain's linear interpolant between tie points,
 off by up to ``kappa h^2 / 8`` on a triangle of edge ``h`` for a terrain of curvature ``kappa`` (metres^-1);

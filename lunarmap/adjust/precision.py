@@ -33,7 +33,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from ..errors import DatumDefectError
+from ..errors import AdjustmentInputError, DatumDefectError
 from .factor import Factorizer
 
 try:
@@ -747,6 +747,8 @@ def _dense_precision(result, redundancy: bool, scale_by_sigma0: bool) -> Precisi
 
 #: rows of the design whose quadratic forms ``a^T Q a`` are formed at once (memory: rows x unknowns doubles)
 _COUPLED_CHUNK_ROWS = 4096
+#: largest number of free unknowns whose dense normal matrix the coupled precision inverts (1.2 GB of doubles)
+COUPLED_DENSE_LIMIT = 12000
 
 
 def _coupled_precision(result, redundancy: bool, scale_by_sigma0: bool) -> Precision:
@@ -765,6 +767,10 @@ def _coupled_precision(result, redundancy: bool, scale_by_sigma0: bool) -> Preci
     n_red = result.free_red.size
     free = np.concatenate([result.free_red, np.repeat(~fixed_pt, 3)])
     fi = np.flatnonzero(free)
+    if fi.size > COUPLED_DENSE_LIMIT:
+        raise AdjustmentInputError(
+            f"the block's precision with point-coupling observations (laser altimetry) is the dense inverse of its "
+            f"{fi.size} unknowns: more than {COUPLED_DENSE_LIMIT}; adjust a smaller block (fewer tie points)")
     Af = A[:, fi].tocsc()
     Nd = (Af.T @ Af).toarray()
     dg = np.diag(Nd).copy()
