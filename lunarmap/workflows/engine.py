@@ -746,6 +746,12 @@ def _run_locked(cfg: RunConfig, scheduler: Any, workers: int, report: bool | Non
                 return client
             return scheduler
 
+        if cfg.altimetry:
+            from ..io.altimetry import read_altimetry
+
+            # a bad shot table (missing column, NaN, a track of one shot) is named before any work
+            for a in cfg.altimetry:
+                read_altimetry(a.path)
         done = _execute(first, scheduler_for(first), progress)
         if cfg.terrain:
             from .checks import check_terrain_coverage
