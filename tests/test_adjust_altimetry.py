@@ -122,6 +122,8 @@ def run_block(seed: int, sigma_factor: float = 1.0, gross: float = 0.0, vc: bool
         check_3d_rms_nav=float(np.sqrt(np.mean(np.sum((r0.points - truth)[chk] ** 2, axis=1)))),
         check_3d_rms_alt=float(np.sqrt(np.mean(np.sum(err[chk] ** 2, axis=1)))),
         tie_normalized_rms=float(np.sqrt(np.mean(z2) / 3.0)),
+        check_normalized_rms=float(np.sqrt(np.mean(np.einsum("ki,kij,kj->k", err[chk], np.linalg.inv(C[chk]),
+                                                             err[chk])) / 3.0)),
         offsets_within_2sigma=float(np.mean(np.abs(off - true_off) <= 2.0 * sig)),
         offsets_normalized_rms=float(np.sqrt(np.mean(((off - true_off) / sig) ** 2))),
         offset_mean_error=float(np.mean(off - true_off)), offset_sigma_median=float(np.median(sig)),
