@@ -323,3 +323,30 @@ def test_adjust_step_summary_reports_the_track_offsets(adjusted):
     z = [(sec["tracks"][str(n)]["offset_m"] - sim.offsets[list(sim.track_names).index(n)])
          / sec["tracks"][str(n)]["offset_sigma_m"] for n in term.track_names]
     assert np.mean(np.abs(z) < 2.0) >= 0.9
+
+
+def test_whole_normal_equations_agree_with_the_schur_path(monkeypatch):
+    """The path of point-coupling terms (the whole normal equations, the dense inverse) on a block without
+    them, against the Schur-complement solver and its precision: the same solution, covariances and
+    redundancy numbers."""
+    from lunarmap.adjust import normal
+
+    sb, net, sensors, spec, times, _ = _block(3)
+    block = lunarmap.build_block(sensors, net, navigation=spec, times=times)
+    ref = lunarmap.solve(block, SolverOptions(ftol=1e-12)).result
+    p_ref = ref.precision()
+    init = normal.Terms.__init__
+
+    def coupled_init(self, problem):
+        init(self, problem)
+        self.coupled = True
+
+    monkeypatch.setattr(normal.Terms, "__init__", coupled_init)
+    res = lunarmap.solve(block, SolverOptions(ftol=1e-12)).result
+    prec = res.precision()
+    assert prec.method == "dense-coupled" and p_ref.method != "dense-coupled"
+    np.testing.assert_allclose(res.points, ref.points, rtol=0, atol=1e-3)               # metres
+    np.testing.assert_allclose(prec.pt_cov, p_ref.pt_cov, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(prec.cam_cov, p_ref.cam_cov, rtol=1e-5, atol=1e-16)
+    np.testing.assert_allclose(prec.redundancy_numbers, p_ref.redundancy_numbers, atol=1e-7)
+    np.testing.assert_allclose(prec.term_redundancy[0], p_ref.term_redundancy[0], atol=1e-7)
