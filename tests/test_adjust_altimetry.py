@@ -350,3 +350,22 @@ def test_whole_normal_equations_agree_with_the_schur_path(monkeypatch):
     np.testing.assert_allclose(prec.cam_cov, p_ref.cam_cov, rtol=1e-5, atol=1e-16)
     np.testing.assert_allclose(prec.redundancy_numbers, p_ref.redundancy_numbers, atol=1e-7)
     np.testing.assert_allclose(prec.term_redundancy[0], p_ref.term_redundancy[0], atol=1e-7)
+
+
+def test_simulated_tracks_have_the_lola_pattern_and_the_stated_errors():
+    """Centre spots 57 m apart along track, the other four 25 m from their centre; radius minus terrain minus the
+    track's offset is the noise (sigma), the gross shots 50 m off."""
+    sim = altimetry_tracks(lambda lo, la: np.zeros_like(lo), (10.0, 10.2), (5.0, 5.4), 3, sigma=0.7, offset_sigma=20.0,
+                           gross_fraction=0.02, seed=2)
+    s = sim.shots
+    X = lonlat_height_to_xyz(s.lon, s.lat, np.zeros(s.n))
+    first = s.track == sim.track_names[0]
+    c = X[first][0::5]                                   # centre spots of the first track
+    np.testing.assert_allclose(np.linalg.norm(np.diff(c, axis=0), axis=1), 57.0, rtol=1e-3)
+    others = X[first].reshape(-1, 5, 3)
+    np.testing.assert_allclose(np.linalg.norm(others[:, 1:] - others[:, :1], axis=2), 25.0, rtol=1e-3)
+    k = np.searchsorted(sim.track_names, s.track)
+    e = s.radius - sim.terrain_radius - sim.offsets[k]
+    assert np.std(e[~sim.gross]) == pytest.approx(0.7, rel=0.05)
+    np.testing.assert_allclose(np.abs(e[sim.gross]), 50.0, atol=5 * 0.7)
+    assert 0.01 < sim.gross.mean() < 0.03

@@ -130,7 +130,9 @@ def altimetry_tracks(height: Callable[[NDArray, NDArray], NDArray], lon_range: t
         east = e_t[k] + sa * u[0] + sc * w[0]
         north = sa * u[1] + sc * w[1]
         t = np.repeat(s_along, spots) / speed + 1.0e4 * k          # seconds; tracks an orbit apart
-        inside = (np.abs(east) <= half_e) & (np.abs(north) <= half_n)
+        # whole shots (all their spots) whose centre spot is in the box
+        ce, cn = e_t[k] + s_along * u[0], s_along * u[1]
+        inside = np.repeat((np.abs(ce) <= half_e) & (np.abs(cn) <= half_n), spots)
         tr.append(np.full(int(inside.sum()), names[k]))
         tt.append(t[inside])
         lo.append(0.5 * (lon0 + lon1) + np.degrees(east[inside] / (R * np.cos(clat))))
