@@ -248,6 +248,21 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
     t_example = time.perf_counter() - t
     _log.info("example written (mission, rendered images, control and check points, run.toml): %.1f s", t_example)
     result = run(config, scheduler=scheduler, workers=workers)
+    seconds = {"example": t_example, **{k: v for k, v in _stage_durations(result.stage_seconds).items()}}
+    cache = result.folder / DEMO_FIGURES
+    stamp = _demo_stamp(result, out)
+    if result.computed == 0:
+        # a rerun that computed nothing has the figures of the run before: the comparison with the truth
+        # (every camera rebuilt, the adjusted kernels reloaded through SPICE, the report drawn again) is not
+        # done again
+        cached = _read_figures(cache, stamp)
+        if cached is not None:
+            cached.seconds = seconds
+            cached.peak_rss_mb = dict(result.summary.get("peak_rss_mb", {}))
+            cached.peak_rss_mb_by_step = dict(result.summary.get("peak_rss_mb_by_step", {}))
+            _log.info("demo: nothing was computed; the comparison with the truth is that of the run before (%s)",
+                      cache)
+            return cached
     _log.info("demo: comparing the results with the simulation's truth (cameras, adjusted kernels reloaded, RFMs)")
     bm = open_block_mission(out / "mission")
     names = list(bm.image_names)
@@ -306,8 +321,7 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
                 from .workflows.report import write_report
 
                 write_report(result, qc_truth=qc_truth)      # the report's verdict says it too
-    seconds = {"example": t_example, **{k: v for k, v in _stage_durations(result.stage_seconds).items()}}
-    return DemoReport(
+    report = DemoReport(
         folder=out, images=names, orbits=bm.model.orbits, n_tie_points=int(s["n_points"]), n_observations=int(s["n_observations"]),
         sigma0=float(s["sigma0"]), tie_sigma_scale=float(s["tie_sigma_scale"]),
         check_rms_before=np.asarray(s["check_rms_before_m"]), check_rms_after=np.asarray(s["check_rms_after_m"]),
@@ -323,6 +337,69 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
                "tiepoints": result.outputs["tiepoints"],
                "report": result.report or Path(), "config": config, "navigation": bm.navigation_metakernel,
                "truth": bm.truth_metakernel})
+    _write_figures(cache, stamp, report)
+    return report
+
+
+#: The demo's figures beside its run (``<run>/demo.json``), for a rerun that computes nothing.
+DEMO_FIGURES = "demo.json"
+
+
+def _demo_stamp(result: Any, example: Path) -> str:
+    """What the demo's figures depend on: every step's key (inputs and parameters), the example's parts
+    (the truth kernels and DTM the figures compare with) and the software version."""
+    import hashlib
+
+    from . import __version__
+
+    try:
+        parts = (example / "example_state.json").read_text()
+    except OSError:
+        parts = ""
+    doc = {"steps": sorted(f"{d.step} {d.key} {d.item}" for d in result.done), "example": parts,
+           "version": __version__, "report": str(result.report)}
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
+
+
+def _write_figures(path: Path, stamp: str, report: DemoReport) -> None:
+    from dataclasses import asdict
+
+    from .atomic import atomic_write
+
+    def plain(v: Any) -> Any:
+        if isinstance(v, np.ndarray):
+            return v.tolist()
+        if isinstance(v, dict):
+            return {str(k): plain(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [plain(x) for x in v]
+        if isinstance(v, Path):
+            return str(v)
+        if isinstance(v, np.generic):
+            return v.item()
+        return v
+
+    doc = {"stamp": stamp, "figures": plain(asdict(report))}
+    try:
+        atomic_write(path, lambda tmp: tmp.write_text(json.dumps(doc, indent=1)))
+    except OSError as err:          # only a rerun's shortcut is lost
+        _log.warning("demo: figures not kept for a rerun (%s)", err)
+
+
+def _read_figures(path: Path, stamp: str) -> DemoReport | None:
+    """The figures of the demo run before, if they were made from the same steps, example and version."""
+    try:
+        doc = json.loads(path.read_text())
+        if doc.get("stamp") != stamp:
+            return None
+        f = dict(doc["figures"])
+        for k in ("check_rms_before", "check_rms_after", "check_sigma_after"):
+            f[k] = np.asarray(f[k], float)
+        f["folder"] = Path(f["folder"])
+        f["files"] = {k: Path(v) for k, v in f["files"].items()}
+        return DemoReport(**f)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
 
 
 def _stage_durations(ends: dict[str, float]) -> dict[str, float]:

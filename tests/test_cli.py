@@ -157,3 +157,23 @@ def test_demo_runs_the_whole_chain(tmp_path, capsys):
         for kind, err in worst.items():
             assert err <= max(5.0 * check_rms[kind], 1e-5), (which, kind, err, check_rms[kind])
         assert moved > 1.0   # the other set is off by the adjustment (tens of metres): the check can fail
+    # the second run computes nothing (counted by its own log line), writes nothing in the outputs, the store or
+    # the report, and prints the figures of the first run's comparison with the truth
+    import re
+
+    run_dir = out / "run"
+    files = sorted(p for sub in ("outputs", "store", "report") for p in (run_dir / sub).rglob("*"))
+    written = {p: p.stat().st_mtime_ns for p in files}
+    assert main(["run", "--example", "--output", str(out), "--quick", "--serial"]) == 0
+    again = capsys.readouterr().out
+
+    def figures(t: str) -> list[str]:        # this run's own timings and memory aside
+        return [ln for ln in t.splitlines() if not ln.strip().startswith(("time (s)", "peak resident memory"))]
+
+    assert figures(again) == figures(text)
+    finished = [ln for ln in (run_dir / "run.log").read_text().splitlines() if "run finished:" in ln]
+    assert len(finished) == 2
+    counts = re.findall(r"(\w+) (\d+) computed / (\d+) reused", finished[-1])
+    assert len(counts) >= 9 and all(int(c) == 0 and int(r) > 0 for _, c, r in counts), finished[-1]
+    assert {p: p.stat().st_mtime_ns for p in written} == written
+    assert sorted(p for sub in ("outputs", "store", "report") for p in (run_dir / sub).rglob("*")) == files

@@ -22,6 +22,24 @@ def _image(shape=(240, 260), seed=0):
     return img
 
 
+def _brute_force_valid(rho, search, tmpl) -> int:
+    """Every shift of ``rho`` (b, k, k) against np.corrcoef of its window of ``search`` and the template: NaN where
+    the window holds a NaN, the correlation coefficient elsewhere; returns the number of valid shifts."""
+    b, k, _ = rho.shape
+    t = tmpl.shape[-1]
+    n_valid = 0
+    for i in range(b):
+        for p in range(k):
+            for q in range(k):
+                w = search[i, p:p + t, q:q + t]
+                if np.isnan(w).any():
+                    assert np.isnan(rho[i, p, q])
+                    continue
+                n_valid += 1
+                assert rho[i, p, q] == pytest.approx(np.corrcoef(w.ravel(), tmpl[i].ravel())[0, 1], abs=1e-10)
+    return n_valid
+
+
 def test_affine_windows_are_bilinear_at_the_affine_grid_also_by_window():
     img = _image()
     rng = np.random.default_rng(1)
@@ -53,17 +71,7 @@ def test_surface_is_the_correlation_coefficient_of_every_shift(fft, monkeypatch)
     rho = ncc_compiled.ncc_surface(tmpl, search)
     k = m - t + 1
     assert rho.shape == (b, k, k)
-    n_valid = 0
-    for i in range(b):
-        for p in range(k):
-            for q in range(k):
-                w = search[i, p:p + t, q:q + t]
-                if np.isnan(w).any():
-                    assert np.isnan(rho[i, p, q])
-                    continue
-                n_valid += 1
-                assert rho[i, p, q] == pytest.approx(np.corrcoef(w.ravel(), tmpl[i].ravel())[0, 1], abs=1e-10)
-    assert n_valid > 0.5 * b * k * k
+    assert _brute_force_valid(rho, search, tmpl) > 0.5 * b * k * k
     peak = [np.unravel_index(np.nanargmax(r), r.shape) for r in rho]
     assert all(pk == (7, 5) for pk in peak)          # the template's own position
 
@@ -124,16 +132,7 @@ def test_surface_of_windows_reaching_past_the_image_is_the_brute_force_correlati
             whole.append(i)
     rho = ncc_compiled.ncc_surface(tmpl, search)
     k = m - t + 1
-    n_valid = 0
-    for i in range(b):
-        for p in range(k):
-            for q in range(k):
-                w = search[i, p:p + t, q:q + t]
-                if np.isnan(w).any():
-                    assert np.isnan(rho[i, p, q])
-                    continue
-                n_valid += 1
-                assert rho[i, p, q] == pytest.approx(np.corrcoef(w.ravel(), tmpl[i].ravel())[0, 1], abs=1e-10)
+    n_valid = _brute_force_valid(rho, search, tmpl)
     assert np.all(np.isnan(rho[5]))              # 6 valid columns: no 7-px template fits
     assert 0 < n_valid < b * k * k
     assert len(whole) >= 4

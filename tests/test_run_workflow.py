@@ -102,12 +102,22 @@ def test_serial_run_adjusts_the_block(serial):
     assert ">Check points, one by one</h2>" in html and ">None<" not in html
 
 
+def _mtimes(folder: Path) -> dict[Path, int]:
+    """Every file and folder under ``folder`` with its modification time (ns)."""
+    return {p: p.stat().st_mtime_ns for p in sorted(folder.rglob("*"))}
+
+
 def test_rerun_reuses_everything_and_a_changed_parameter_reruns_only_what_depends_on_it(example, serial):
     txts = sorted((serial.config.output / "outputs").glob("rpc*/*_RPC.TXT"))
     assert len(txts) == 2 * len(serial.config.images)
     made = {f: f.stat().st_mtime_ns for f in txts}
+    # the first rerun writes nothing either: no output copied again, no store entry, no digest (the outputs'
+    # digests were noted when they were written)
+    outputs, store = serial.config.output / "outputs", serial.config.output / "store"
+    written = {**_mtimes(outputs), **_mtimes(store)}
     again = run(serial.config, scheduler="sync", report=False)
-    assert again.computed == 0
+    assert again.computed == 0 and again.counts()["adjust"] == (0, 1)
+    assert {**_mtimes(outputs), **_mtimes(store)} == written
     # the RPCs' text forms are not written again (a rerun of 192 images spent 12 of its 28 s rewriting them),
     # but a damaged one is
     assert {f: f.stat().st_mtime_ns for f in txts} == made
@@ -195,7 +205,7 @@ def test_robust_first_in_the_run_is_the_first_adjustment(example, serial):
 
 
 def test_interrupted_run_resumes_with_only_the_unfinished_steps(example, monkeypatch):
-    import lunarmap.workflows.steps as run_mod     # match batches call their pairs' match_step
+    import lunarmap.workflows.steps as run_mod  # match batches call their pairs' match_step
 
     cfg = _config(example, "interrupted")
     calls = {"n": 0}
@@ -222,8 +232,38 @@ def test_interrupted_run_resumes_with_only_the_unfinished_steps(example, monkeyp
     assert counts["match"] == (3, 3) and counts["tiepoints"] == (1, 0) and counts["adjust"] == (1, 0)
 
 
-def test_local_cluster_gives_identical_results(example, serial):
+def _export_files(folder: Path) -> dict[str, bytes]:
+    """The per-image output files of a run (ISDs, RFMs as netCDF and text), by path in ``outputs``."""
+    out = folder / "outputs"
+    return {str(p.relative_to(out)): p.read_bytes() for sub in ("isd", "rpc", "rpc_adjusted")
+            for p in sorted((out / sub).iterdir())}
+
+
+def test_local_cluster_gives_identical_results(example, serial, monkeypatch, tmp_path):
+    import lunarmap.workflows.outputs as outputs_mod
+
+    def not_here(*args, **kwargs):
+        raise AssertionError("a per-image output file was written after the graph, in the main process")
+
+    # the per-image output files are written by the tasks on the workers (processes of their own: this
+    # process's patch does not reach them), none by the main process after the graph
+    monkeypatch.setattr(outputs_mod.Outputs, "rpc_text", not_here)
     res = run(_config(example, "cluster"), scheduler=None, workers=2, report=False)
+    monkeypatch.undo()
+    # byte for byte the files of the serial run (written there by the same tasks in this process)
+    mine, theirs = _export_files(res.folder), _export_files(serial.folder)
+    assert len(theirs) == 5 * len(NAMES) and mine.keys() == theirs.keys()
+    assert [k for k in mine if mine[k] != theirs[k]] == []
+    # each text form (written by its task from the model it had just fitted) is the one of its netCDF file read
+    # back, byte for byte, and reads back to that model
+    from lunarmap.rpc import read_netcdf, read_rpc_txt, write_rpc_txt
+
+    for name in NAMES:
+        for sub in ("rpc", "rpc_adjusted"):
+            nc = read_netcdf(res.outputs[sub] / f"{name}.nc")
+            again = write_rpc_txt(nc, tmp_path / f"{sub}_{name}_RPC.TXT")
+            assert again.read_bytes() == mine[f"{sub}/{name}_RPC.TXT"], (sub, name)
+            np.testing.assert_array_equal(read_rpc_txt(again).coefficients, nc.coefficients)
     a, b = _points(res), _points(serial)
     assert np.max(np.abs(a - b) / np.abs(b).max()) <= 1e-9
     assert res.summary["sigma0"] == pytest.approx(serial.summary["sigma0"], rel=1e-9)
@@ -281,9 +321,8 @@ def test_separately_started_scheduler_gives_identical_results(example, serial, t
 def test_a_worker_killed_mid_run_does_not_change_the_results(example, serial):
     """One of two worker processes is killed once the first match tasks have finished; the nanny restarts
     it, its tasks are rerun, the results are those of the serial run."""
-    from distributed import Client, LocalCluster
-
     import dask
+    from distributed import Client, LocalCluster
 
     from lunarmap.matching import WORKER_ENVIRON
 

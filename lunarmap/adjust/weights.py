@@ -27,6 +27,9 @@ from .problem import BundleProblem, ImageObservations, PointPriors
 
 __all__ = ["ScaledTerm", "Weights", "reweighted_problem"]
 
+#: sigma factor of a term row out with its point (:meth:`Weights.term_rows_out`): weight 1e-12 of its own
+OUT_FACTOR = 1e6
+
 
 class ScaledTerm:
     """A camera-level term whose observation ``i`` has its sigma multiplied by ``factor[i]``.
@@ -120,6 +123,17 @@ class Weights:
         assert self.term_vc is not None
         return self.term_sigma[t] > self.term_vc[t] * (1.0 + 1e-9)
 
+    def term_rows_out(self, term) -> NDArray[np.bool_]:
+        """Rows of ``term`` out of the adjustment with their point: a point-observing term's (reference DTM
+        heights) rows whose point is dropped (held fixed without its rays); none for other terms.
+
+        Such a row's residual is where the point was left, not a measurement of the terrain: it gets
+        :data:`OUT_FACTOR` in :func:`reweighted_problem`, so that it weighs nothing.
+        """
+        if not getattr(term, "uses_points", False):
+            return np.zeros(term.n_obs_scalar, bool)
+        return np.asarray(self.dropped_points, bool)[np.asarray(term.point_index, np.int64)]
+
     def control_downweighted(self) -> NDArray[np.bool_]:
         """Control points whose sigma factor is above their group's variance component (down-weighted)."""
         assert self.control_vc is not None
@@ -189,7 +203,9 @@ def reweighted_problem(base: BundleProblem, w: Weights, cam_params: NDArray | No
     terms = list(base.terms) if terms is None else list(terms)
     if len(terms) != len(w.term_sigma):
         raise AdjustmentInputError(f"{len(w.term_sigma)} term weight vectors for {len(terms)} terms")
-    terms = [t if np.all(f == 1.0) else ScaledTerm(t, f) for t, f in zip(terms, w.term_sigma)]
+    # a point-observing row of a dropped point weighs nothing: its point stays where it was left
+    factors = [np.where(w.term_rows_out(t), OUT_FACTOR * f, f) for t, f in zip(terms, w.term_sigma)]
+    terms = [t if np.all(f == 1.0) else ScaledTerm(t, f) for t, f in zip(terms, factors)]
     free = np.asarray(base.cam_param_free, bool) & ~w.fixed_images[:, None]
     return dataclasses.replace(base, cam_params=np.array(base.cam_params if cam_params is None else cam_params),
                                points=X, obs=ImageObservations(o.cam_idx, o.pt_idx, o.xy, sigma), priors=priors,

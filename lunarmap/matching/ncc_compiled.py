@@ -69,11 +69,11 @@ def _affine_bilinear_py(img: Array, cl: Array, cs: Array, a: Array, r: int, y_of
                                 + fy * ((1.0 - fx) * img[i + 1, j] + fx * img[i + 1, j + 1]))
 
 
-def _surface_py(tm: Array, tn: Array, search: Array, cross: Array, have_cross: NDArray[np.bool_],
+def _surface_py(tm: Array, tn: Array, search: Array, mean: Array, cross: Array, have_cross: NDArray[np.bool_],
                 rho: Array) -> None:
     """Correlation surface of mean-free templates ``tm`` (b, t, t) (norms ``tn``) in windows ``search``
-    (b, m, m, NaN invalid); ``cross[b]`` the cross products of the windows with ``have_cross[b]`` (the others'
-    are computed here, directly)."""
+    (b, m, m, NaN invalid) whose valid pixels' mean is ``mean`` (:func:`_boxes_py`); ``cross[b]`` the cross
+    products of the windows with ``have_cross[b]`` (the others' are computed here, directly)."""
     bn, m, _ = search.shape
     t = tm.shape[1]
     k = m - t + 1
@@ -83,15 +83,7 @@ def _surface_py(tm: Array, tn: Array, search: Array, cross: Array, have_cross: N
     cnt = np.zeros((m + 1, m + 1), dtype=np.int64)
     for b in range(bn):
         # offset: the mean of the valid pixels (correlation unchanged, variance without cancellation)
-        tot = 0.0
-        nv = 0
-        for i in range(m):
-            for j in range(m):
-                g = search[b, i, j]
-                if np.isfinite(g):
-                    tot += g
-                    nv += 1
-        c = tot / nv if nv else 0.0
+        c = mean[b]
         for i in range(m):
             r1 = 0.0
             r2 = 0.0
@@ -269,5 +261,5 @@ def ncc_surface(tmpl: Array, search: Array) -> Array:
         f *= np.conj(g)
         corr = sp_fft.irfft2(f, s=(h, w), axes=(1, 2))
         _place_kernel(corr, rows, box, t, cross)
-    _surface_kernel(tm, tn, search, cross, by_fft, rho)
+    _surface_kernel(tm, tn, search, mean, cross, by_fft, rho)
     return rho

@@ -145,22 +145,19 @@ def check_terrain_coverage(cfg: Any, footprints: dict[str, Sequence[Any]]) -> No
     from ..adjust.terrain import DtmGrid, point_height
     from ..errors import DtmCoverageError
 
+    def meets(grid: DtmGrid, f: Any) -> bool:
+        # the footprint's extent in the grid's pixels overlaps the grid (an outline off the map does not)
+        lon, lat, _, _ = point_height(np.asarray(f.xyz, float), grid.radius)
+        col, row = grid.to_pixel(lon, lat)
+        if not (np.isfinite(col).all() and np.isfinite(row).all()):
+            return False
+        nl, ns = grid.shape
+        return bool(col.max() >= 0 and col.min() <= ns - 1 and row.max() >= 0 and row.min() <= nl - 1)
+
     for k, d in enumerate(cfg.terrain):
         grid = DtmGrid.open(d.path)
         nl, ns = grid.shape
-        meets = False
-        for feet in footprints.values():
-            for f in feet or ():
-                lon, lat, _, _ = point_height(np.asarray(f.xyz, float), grid.radius)
-                col, row = grid.to_pixel(lon, lat)
-                if not (np.isfinite(col).all() and np.isfinite(row).all()):
-                    continue
-                if col.max() >= 0 and col.min() <= ns - 1 and row.max() >= 0 and row.min() <= nl - 1:
-                    meets = True
-                    break
-            if meets:
-                break
-        if not meets:
+        if not any(meets(grid, f) for feet in footprints.values() for f in feet or ()):
             raise DtmCoverageError(
                 f"{cfg.source}: adjust.terrain.dtm[{k}] ({d.name}): reference DTM {d.path} covers none of the "
                 f"run's tie points: its grid ({ns} x {nl} nodes) meets none of the {len(footprints)} images' "

@@ -23,11 +23,12 @@ import xarray as xr
 from ..blas import single_threaded_blas
 from ..camera.geodesy import MOON_GEOGRAPHIC_CRS
 from ..errors import LunarmapError, WorkflowError
+from .outputs import Exported, Outputs, export_image, export_rpcs, remember_rfm
 from .store import Store
 
 _log = logging.getLogger(__name__)
 
-__all__ = ["Done", "ImageJob", "ImageDone", "MatchJob", "image_steps", "isd_step", "rpc_step", "pyramid_step",
+__all__ = ["Done", "ImageJob", "ImageDone", "BatchDone", "MatchJob", "image_steps", "isd_step", "rpc_step", "pyramid_step",
            "detect_step", "footprint_step", "match_batch", "match_step", "tiepoints_step", "adjust_step",
            "kernels_step", "kernel_sets", "adjusted_rpc_batch", "read_pixels", "provenance"]
 
@@ -79,6 +80,23 @@ def _one_blas_thread(fn: Callable[..., Done]) -> Callable[..., Done]:
             release_free_memory()      # what the step freed leaves the worker, not only its Python heap
         return out
     return wrapped
+
+
+def _stored_at_once(step: str, ext: str = "") -> Callable[[Callable[..., Done]], Callable[..., Done]]:
+    """Call a :func:`_one_blas_thread` step ``fn(store, key, ...)`` without its BLAS limit and memory sampling
+    when its output ``<step>/<key>.<ext>`` is stored: the step then only returns the stored record, and a
+    rerun of thousands of reused steps does not pay for setting OpenBLAS's threads and starting a sampler
+    for each (measured: 5 ms per reused step on a loaded machine, most of a rerun's per-image time)."""
+    def decorate(wrapped: Callable[..., Done]) -> Callable[..., Done]:
+        plain: Callable[..., Done] = wrapped.__wrapped__  # type: ignore[attr-defined]
+
+        @functools.wraps(plain)
+        def call(store: Store, key: str, *args: Any, **kwargs: Any) -> Done:
+            if store.has(step, key, ext):
+                return plain(store, key, *args, **kwargs)
+            return wrapped(store, key, *args, **kwargs)
+        return call
+    return decorate
 
 
 def provenance(config_digest: str, kernels: Sequence[str] = ()) -> dict[str, Any]:
@@ -170,6 +188,7 @@ def _dtm_sampler_cached(path: str, size: int, mtime: int) -> tuple[Any, float]:
 
 # -- per image -------------------------------------------------------------------------------
 
+@_stored_at_once("isd", "json")
 @_one_blas_thread
 def isd_step(store: Store, key: str, name: str, label: str, metakernel: str) -> Done:
     """Image support data of one image (one SPICE pass), written as ISD JSON."""
@@ -200,6 +219,7 @@ def _camera_of(path: str, size: int, mtime: int) -> Any:
     return camera_from_isd_file(path)
 
 
+@_stored_at_once("rpc", "nc")
 @_one_blas_thread
 def rpc_step(store: Store, key: str, isd: Done, height_range: tuple[float, float]) -> Done:
     """The cubic RFM of an image's camera, with its independent check report (netCDF)."""
@@ -214,11 +234,13 @@ def rpc_step(store: Store, key: str, isd: Done, height_range: tuple[float, float
     except LunarmapError as err:
         raise _fail("rpc", isd.item, err) from None
     path = store.write("rpc", key, "nc", lambda tmp: write_netcdf(fit.model, tmp))
+    remember_rfm(path, fit.model)
     assert fit.check is not None        # fit_rpc checks by default
     return Done("rpc", key, isd.item, str(path), True, time.perf_counter() - t,
                 note=f"check RMS {fit.check.rms:.2e} px")
 
 
+@_stored_at_once("rpc_adjusted", "nc")
 @_one_blas_thread
 def adjusted_rpc_step(store: Store, key: str, name: str, adjusted: Done, height_range: tuple[float, float]) -> Done:
     """The cubic RFM of an image's *adjusted* camera (from the adjustment's ISD), with its check report.
@@ -237,6 +259,7 @@ def adjusted_rpc_step(store: Store, key: str, name: str, adjusted: Done, height_
     except LunarmapError as err:
         raise _fail("rpc_adjusted", name, err) from None
     path = store.write("rpc_adjusted", key, "nc", lambda tmp: write_netcdf(fit.model, tmp))
+    remember_rfm(path, fit.model)
     assert fit.check is not None        # fit_rpc checks by default
     return Done("rpc_adjusted", key, name, str(path), True, time.perf_counter() - t,
                 note=f"check RMS {fit.check.rms:.2e} px")
@@ -253,12 +276,23 @@ def _tiles_by_row(shape: tuple[int, int], tile: int, halo: int) -> list[list[tup
     return list(rows.values())
 
 
+@dataclass
+class BatchDone:
+    """Records of a batch of steps and the manifest rows of the output files the batch wrote."""
+
+    records: list[Done]
+    exported: Exported | None = None
+
+
 def adjusted_rpc_batch(store: Store, jobs: Sequence[tuple[str, str]], adjusted: Done,
-                       height_range: tuple[float, float]) -> list[Done]:
-    """:func:`adjusted_rpc_step` of several images ``(key, name)`` in one task."""
-    return [adjusted_rpc_step(store, k, n, adjusted, height_range) for k, n in jobs]
+                       height_range: tuple[float, float], outputs: Outputs | None = None) -> BatchDone:
+    """:func:`adjusted_rpc_step` of several images ``(key, name)`` in one task; with ``outputs``, their RFMs
+    are also written to ``outputs/rpc_adjusted`` (netCDF and ``_RPC.TXT``) by this task."""
+    records = [adjusted_rpc_step(store, k, n, adjusted, height_range) for k, n in jobs]
+    return BatchDone(records, export_rpcs(outputs, records, "rpc_adjusted") if outputs is not None else None)
 
 
+@_stored_at_once("detect", "npz")
 @_one_blas_thread
 def detect_step(store: Store, key: str, name: str, pixels: str, params: Any, saturation: float | None) -> Done:
     """Förstner interest points of a whole image, tile by tile (``.npz``).
@@ -438,10 +472,12 @@ class ImageJob:
 
 @dataclass
 class ImageDone:
-    """The per-image steps' records and the image's footprints."""
+    """The per-image steps' records, the image's footprints and the manifest rows of the output files its
+    task wrote (or found fresh) in the run's ``outputs`` folder."""
 
     records: list[Done]
     footprints: list[Any] | None
+    exported: Exported | None = None
 
     def get(self, step: str) -> Done | None:
         return next((d for d in self.records if d.step == step), None)
@@ -449,9 +485,11 @@ class ImageDone:
 
 def image_steps(store: Store, job: ImageJob, metakernel: str, heights: tuple[float, ...],
                 rpc_height_range: tuple[float, float] | None, detect: Any, pyramid_levels: int,
-                saturation: float | None) -> ImageDone:
+                saturation: float | None, outputs: Outputs | None = None) -> ImageDone:
     """One task per image: its ISD, footprints, RFM, pyramid and interest points, each stored under its own
-    key (a rerun or a resumed run computes only the missing ones)."""
+    key (a rerun or a resumed run computes only the missing ones); with ``outputs``, also the image's files
+    of the run's outputs folder (its ISD and RFM: :func:`lunarmap.workflows.outputs.export_image`), on the
+    worker that ran it, not after the graph."""
     isd = isd_step(store, job.isd_key, job.name, job.label, metakernel)
     stored = all(store.has(*k) for k in (("footprint", job.footprint_key, "npz"), ("pyramid", job.pyramid_key, "nc"),
                                          ("detect", job.detect_key, "npz")))
@@ -466,7 +504,7 @@ def image_steps(store: Store, job: ImageJob, metakernel: str, heights: tuple[flo
         records.append(rpc_step(store, job.rpc_key, isd, rpc_height_range))
     records.append(pyramid_step(store, job.pyramid_key, job.name, job.pixels, pyramid_levels, saturation, job.digest))
     records.append(detect_step(store, job.detect_key, job.name, job.pixels, detect, saturation))
-    return ImageDone(records, feet)
+    return ImageDone(records, feet, export_image(outputs, records) if outputs is not None else None)
 
 
 @dataclass(frozen=True)
@@ -489,6 +527,7 @@ def match_batch(store: Store, jobs: Sequence[MatchJob], dtm: str | None, params:
                        j.digests) for j in jobs]
 
 
+@_stored_at_once("match", "npz")
 @_one_blas_thread
 def match_step(store: Store, key: str, pair: tuple[str, str], pixels: tuple[str, str], isds: tuple[Done, Done],
                pyramids: tuple[Done | None, Done | None], points: Done, dtm: str | None, params: Any,
@@ -539,6 +578,7 @@ def match_step(store: Store, key: str, pair: tuple[str, str], pixels: tuple[str,
     return Done("match", key, item, str(path), True, time.perf_counter() - t, note)
 
 
+@_stored_at_once("tiepoints", "nc")
 @_one_blas_thread
 def tiepoints_step(store: Store, key: str, names: Sequence[str], pairs: Sequence[tuple[str, str]],
                    matches: Sequence[Done], track_tol: float, attrs: dict[str, Any]) -> Done:
@@ -570,6 +610,7 @@ def tiepoints_step(store: Store, key: str, names: Sequence[str], pairs: Sequence
 
 # -- the block -------------------------------------------------------------------------------
 
+@_stored_at_once("adjust")
 @_one_blas_thread
 def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[str], isds: Sequence[Done],
                 ties: Done, points: str | None, degree: int, navigation: dict[str, Any] | None,
@@ -815,7 +856,8 @@ def _terrain_outputs(block: Any, res: Any, qc_out: Any, est: Any,
         r = np.asarray(term.residuals_m(points), float)
         factor = np.ones(r.size) if weights is None else np.asarray(weights.term_sigma[t], float)
         down = np.zeros(r.size, bool) if weights is None else np.asarray(weights.term_downweighted(t), bool)
-        out_pt = np.zeros(r.size, bool) if weights is None else np.asarray(weights.dropped_points, bool)[term.point_index]
+        # out with its point: the rule the QC status table uses (Weights.term_rows_out)
+        out_pt = np.zeros(r.size, bool) if weights is None else weights.term_rows_out(term)
         status = np.where(~np.isfinite(r), "lost", np.where(out_pt, "point out", np.where(down, "down-weighted", "in")))
         scale, scale_sd, estimated = 1.0, float("nan"), False
         if vc is not None and term.name in vc.names:

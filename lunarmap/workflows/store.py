@@ -32,7 +32,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-__all__ = ["Store", "file_digest", "files_digest", "step_key", "load_digests", "save_digests", "seal", "verify_entry",
+__all__ = ["Store", "file_digest", "files_digest", "step_key", "load_digests", "save_digests", "digest_rows",
+           "add_digests", "seal", "verify_entry",
            "verify_store", "remove_entry", "entry_of", "SIDECAR"]
 
 #: Suffix of an entry's checksum sidecar.
@@ -72,13 +73,35 @@ def load_digests(path: str | os.PathLike[str]) -> int:
 
 
 def save_digests(path: str | os.PathLike[str]) -> None:
-    """Write the digests of every file this process has hashed, atomically (see :func:`load_digests`)."""
+    """Write the digests of every file this process has hashed, atomically (see :func:`load_digests`); a file
+    that already holds them is left as it is (a rerun that hashed nothing new writes nothing)."""
     from ..atomic import atomic_write
 
     rows = [[p, size, mtime, d] for (p, size, mtime), d in sorted(_DIGESTS.items())]
     doc = {"sha256": hashlib.sha256(json.dumps(rows).encode()).hexdigest(), "rows": rows}
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(doc)))
+    text = json.dumps(doc)
+    p = Path(path)
+    try:
+        if p.read_text() == text:
+            return
+    except (OSError, UnicodeDecodeError):
+        pass
+    p.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(p, lambda tmp: tmp.write_text(text))
+
+
+def digest_rows(under: str) -> list[tuple[str, int, int, str]]:
+    """The content digests this process knows of files under the folder ``under`` (absolute, resolved):
+    what a worker hashed while writing the store and the outputs, for the run's main process to keep
+    (:func:`add_digests`), so that a rerun does not read those files again."""
+    prefix = str(Path(under)) + os.sep
+    return [(p, size, mtime, d) for (p, size, mtime), d in _DIGESTS.items() if p.startswith(prefix)]
+
+
+def add_digests(rows: Iterable[tuple[str, int, int, str]]) -> None:
+    """Remember digests another process computed (rows of :func:`digest_rows`)."""
+    for p, size, mtime, d in rows:
+        _DIGESTS[(str(p), int(size), int(mtime))] = str(d)
 
 
 def file_digest(path: str | os.PathLike[str]) -> str:
@@ -104,6 +127,16 @@ def _fresh_digest(path: Path) -> str:
     st = path.stat()
     _DIGESTS[(str(path.resolve()), st.st_size, st.st_mtime_ns)] = h.hexdigest()
     return h.hexdigest()
+
+
+def note_copy(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> None:
+    """Remember that ``dst`` (a file or directory just copied) holds the bytes of ``src``: its content digests
+    are those of ``src``, so that checking the copy later (a rerun's export) does not read it again."""
+    dst = Path(dst)
+    for rel, d in _entry_digests(Path(src)).items():
+        f = dst / rel if rel else dst
+        st = f.stat()
+        _DIGESTS[(str(f.resolve()), st.st_size, st.st_mtime_ns)] = d
 
 
 def sidecar(entry: str | os.PathLike[str]) -> Path:

@@ -281,7 +281,12 @@ def _auto_robust_start(ledger: Ledger, steps: list, opt: QCOptions, budget: Budg
 
 def _groups(ledger: Ledger, image_group, image_group_names) -> ObservationGroups:
     pb = dataclasses.replace(ledger.base, terms=list(ledger.terms))
-    return observation_groups(pb, image_group, image_group_names)
+    groups = observation_groups(pb, image_group, image_group_names)
+    for t, g in enumerate(groups.terms):
+        # a DTM row out with its point weighs nothing and is explained by nothing: its redundancy number 1 with a
+        # zero residual would pull its group's variance component down
+        g[ledger.term_rows_out(t)] = -1
+    return groups
 
 
 def quality_control(problem: BundleProblem, steps: Sequence[str] = ("sequent", "baarda", "variance"),

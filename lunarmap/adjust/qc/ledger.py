@@ -64,6 +64,9 @@ class Decision:
         point: :meth:`Ledger.withdraw_point`).
     group : str
         Observation group (e.g. ``"image 0"``, ``"navigation position orbit 1"``).
+    term : int
+        The term of a ``"navigation"`` or ``"terrain"`` row (``index`` is its row; -1 for other kinds): rows of
+        two terms share row numbers.
     """
 
     step: str
@@ -77,6 +80,7 @@ class Decision:
     redundancy: float = float("nan")
     action: str = "removed"
     group: str = ""
+    term: int = -1
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -487,6 +491,11 @@ class Ledger:
         heights), ``"navigation"`` otherwise."""
         return "terrain" if getattr(self.terms[term], "uses_points", False) else "navigation"
 
+    def term_rows_out(self, term: int) -> NDArray[np.bool_]:
+        """Rows of term ``term`` that are out with their point (:meth:`Weights.term_rows_out`): not tested, in no
+        variance group, their final status their point's."""
+        return self.weights.term_rows_out(self.terms[term])
+
     def downweight_term(self, term: int, row: int, factor: float, step: str, rnd: int, value=np.nan,
                         redundancy=np.nan, image=-1, component=-1, group="navigation") -> None:
         """``P_new = P_old / factor`` for one row of a term (navigation observation; a reference DTM height,
@@ -496,7 +505,7 @@ class Ledger:
         # a row observing several points (an altimetry shot) names its nearest one (first)
         point = int(np.atleast_1d(self.terms[term].point_index[row])[0]) if kind == "terrain" else -1
         self.decisions.append(Decision(step, rnd, kind, int(row), int(image), point, int(component), float(value),
-                                       float(redundancy), "downweighted", group))
+                                       float(redundancy), "downweighted", group, term=int(term)))
 
     def downweight_control(self, k: int, factor: float, step: str, rnd: int, value=np.nan, redundancy=np.nan,
                            component=-1) -> None:

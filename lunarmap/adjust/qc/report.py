@@ -17,7 +17,8 @@ __all__ = ["QCReport"]
 #: the table names the group another trades with when their variance factors correlate below minus this
 SEPARABLE_CORRELATION = 0.8
 
-_FIELDS = ("step", "round", "kind", "index", "image", "point", "component", "value", "redundancy", "action", "group")
+_FIELDS = ("step", "round", "kind", "index", "image", "point", "component", "value", "redundancy", "action", "group",
+           "term")
 
 
 @dataclass

@@ -152,6 +152,8 @@ def w_tests(ledger: Ledger, sigma0: str = "apriori", min_redundancy: float = 0.0
         rr = pr.term_redundancy[i]
         table = getattr(t, "row_table", None)
         obs_rows = np.ones(rx.size, bool) if table is None else table()["kind"] == 0
+        # a DTM row of a point out of the adjustment is out with it (its residual is where the point was left)
+        obs_rows = obs_rows & ~ledger.term_rows_out(i)
         okt = obs_rows & (rr >= min_redundancy)
         untestable += int(np.sum(obs_rows & ~okt))
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -514,8 +516,8 @@ def _stripped_swaps(ledger: Ledger, limit: float, done: set, rnd: int, hits: dic
                     for row in r[ledger.weights.term_downweighted(t)[r]]:
                         ledger.weights.restore_term(t, int(row))
                         hits.pop((t, int(row)), None)     # a navigation error of its own is tested afresh
-                        ledger.decisions.append(Decision("baarda", rnd, "navigation", int(row), unit,
-                                                         action="reinstated"))
+                        ledger.decisions.append(Decision("baarda", rnd, ledger.term_kind(t), int(row), unit,
+                                                         action="reinstated", term=t))
             n_swaps += 1
     return n_swaps
 
@@ -722,7 +724,8 @@ def snooping_step(ledger: Ledger, limit: float = 4.0, factor: float = 5.0, max_r
                 else:
                     ledger.weights.restore_term(key[1], key[2])
                 kind = "control" if key[0] == "control" else ledger.term_kind(key[1])
-                ledger.decisions.append(Decision("baarda", rnd, kind, key[-1], action="reinstated"))
+                ledger.decisions.append(Decision("baarda", rnd, kind, key[-1], action="reinstated",
+                                                 term=-1 if key[0] == "control" else key[1]))
             continue
         cands.sort(key=lambda c: -c[0])
         if per_round == "one":

@@ -1,12 +1,12 @@
 """The final status of every observation of a quality-controlled adjustment (issue 27, item 5).
 
-Every image observation, every weighted control point and every navigation row of the base problem
-ends in exactly one of :data:`STATUSES`:
+Every image observation, every weighted control point and every row of every term of the base problem
+(navigation observations, reference DTM heights) ends in exactly one of :data:`STATUSES`:
 
 * ``"in"`` -- in the final adjustment at its a-priori weight (or given back after a removal);
 * ``"removed"`` -- judged wrong by a test of its own (Sequent, a robust weight below the limit, a
   w-test): weight 0;
-* ``"down-weighted"`` -- a navigation or control observation kept with a reduced weight (``P / factor``,
+* ``"down-weighted"`` -- a navigation, terrain or control observation kept with a reduced weight (``P / factor``,
   or flagged);
 * ``"withdrawn"`` -- out with all the rays of its point: the data cannot tell which of them is wrong;
 * ``"set-aside"`` -- out for a reason that is not a test of its own: its point was left with fewer than
@@ -45,13 +45,16 @@ def final_status(ledger: Ledger) -> xr.Dataset:
     -------
     xarray.Dataset
         Dimension ``observation`` (image observations first, in their base order, then weighted control
-        points in ``priors`` order, then every navigation row of every term); variables ``kind``
-        (``"image"``, ``"control"``, ``"navigation"``), ``index`` (observation, control point or term
-        row), ``term`` (term of a navigation row, -1 otherwise), ``image`` and ``point`` (-1 if none),
+        points in ``priors`` order, then every row of every term); variables ``kind`` (``"image"``,
+        ``"control"``, and for a term's rows :meth:`~.ledger.Ledger.term_kind`: ``"navigation"`` or
+        ``"terrain"``, a reference DTM height), ``index`` (observation, control point or term row), ``term``
+        (term of a term's row, -1 otherwise), ``image`` and ``point`` (-1 if none; a terrain row's point),
         ``status`` (one of :data:`STATUSES`), ``step`` and ``round`` of the deciding decision (``""`` /
         -1 for an observation nothing acted on), ``value`` (its test value: ``|w|`` of a w-test, a
         robust weight, Sequent's intersection sigma in the block's length unit; NaN if none),
-        ``reason`` (the decision's group or why it was set aside).
+        ``reason`` (the decision's group or why it was set aside). A terrain row whose point is out of the
+        adjustment (:meth:`~.ledger.Ledger.term_rows_out`) is out with it, not tested: ``"withdrawn"`` or
+        ``"set-aside"`` with its point's deciding step.
     """
     base = ledger.base
     o = base.obs
@@ -65,15 +68,15 @@ def final_status(ledger: Ledger) -> xr.Dataset:
     # the last decision on each image observation and on each point decides (decisions are chronological)
     last_img: dict[int, Decision] = {}
     last_pt: dict[int, Decision] = {}
-    nav_last: dict[int, Decision] = {}
+    term_last: dict[tuple[int, int], Decision] = {}     # (term, row)
     ctl_last: dict[int, Decision] = {}
     for d in ledger.decisions:
         if d.kind == "image":
             last_img[d.index] = d
         elif d.kind == "point" and d.action in ("dropped", "withdrawn"):
             last_pt[d.index] = d
-        elif d.kind == "navigation":
-            nav_last[d.index] = d
+        elif d.kind in ("navigation", "terrain") and d.term >= 0:
+            term_last[(d.term, d.index)] = d
         elif d.kind == "control":
             ctl_last[d.index] = d
     for i in range(n):
@@ -109,13 +112,23 @@ def final_status(ledger: Ledger) -> xr.Dataset:
             ctl_down = bool(ledger.weights.control_downweighted()[k])
             rows.append(("control", int(k), -1, -1, int(pri.idx[k]), "down-weighted" if ctl_down else "in",
                          ctl_last.get(int(k))))
+    # rows of a term out with their point (a DTM height of a dropped point): the point's status and decision
+    aside: list[tuple[int, str, Decision | None]] = []
     for t, fac in enumerate(ledger.weights.term_sigma):
-        table = getattr(ledger.terms[t], "row_table", None)
+        term_obj = ledger.terms[t]
+        kind_t = ledger.term_kind(t)
+        table = getattr(term_obj, "row_table", None)
         img_of = table()["image"] if table is not None else np.full(fac.size, -1)
+        pt_of = np.asarray(term_obj.point_index, np.int64) if kind_t == "terrain" else np.full(fac.size, -1)
         down = ledger.weights.term_downweighted(t)
+        out = ledger.term_rows_out(t)
         for r in range(fac.size):
-            rows.append(("navigation", r, t, int(img_of[r]), -1, "down-weighted" if down[r] else "in",
-                         nav_last.get(r)))
+            if out[r]:
+                dp = last_pt.get(int(pt_of[r]))
+                aside.append((len(rows), "withdrawn" if dp is not None and dp.action == "withdrawn" else "set-aside",
+                              dp))
+            rows.append((kind_t, r, t, int(img_of[r]), int(pt_of[r]), "down-weighted" if down[r] else "in",
+                         term_last.get((t, r))))
     if rows:
         kind = np.concatenate([kind, np.array([r[0] for r in rows], dtype=object)])
         index = np.concatenate([index, np.array([r[1] for r in rows], np.int64)])
@@ -131,6 +144,13 @@ def final_status(ledger: Ledger) -> xr.Dataset:
         reason = np.concatenate([reason, np.array([("given back" if d.action == "reinstated" else
                                                     f"{d.action} ({d.group})" if d.action == "flagged" else d.group)
                                                    if d is not None else "" for d in ds], dtype=object)])
+        for pos, st_k, dp in aside:
+            at = n + pos
+            status[at] = st_k
+            if dp is None:
+                step[at], rnd[at], value[at], reason[at] = "", -1, np.nan, "its point is out (no decision recorded)"
+            else:
+                step[at], rnd[at], value[at], reason[at] = dp.step, dp.round, dp.value, f"its point is out ({dp.group})"
     return xr.Dataset({"kind": ("observation", kind), "index": ("observation", index), "term": ("observation", term),
                        "image": ("observation", image), "point": ("observation", point),
                        "status": ("observation", status), "step": ("observation", step),
