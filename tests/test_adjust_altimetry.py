@@ -369,3 +369,15 @@ def test_simulated_tracks_have_the_lola_pattern_and_the_stated_errors():
     assert np.std(e[~sim.gross]) == pytest.approx(0.7, rel=0.05)
     np.testing.assert_allclose(np.abs(e[sim.gross]), 50.0, atol=5 * 0.7)
     assert 0.01 < sim.gross.mean() < 0.03
+
+
+def test_free_track_offsets_without_navigation_are_a_datum_defect():
+    """Without navigation and control points nothing fixes the block's radius and orientation: free track offsets
+    (no offset_sigma) leave the datum undefined, named before any iteration."""
+    from lunarmap.errors import DatumDefectError
+
+    sb, net, sensors, _, _, _ = _block(3)
+    sim = _tracks(sb, 3)
+    block = lunarmap.build_block(sensors, net, altimetry=[LaserAltimetry(sim.shots, sigma_m=SHOT_SIGMA)])
+    with pytest.raises(DatumDefectError):
+        lunarmap.solve(block, SolverOptions(ftol=1e-10))

@@ -214,6 +214,13 @@ class AltimetryObservations:
         """Rows in the instrument's variance-component group and w-tested: the shots (not the offset priors)."""
         return np.arange(self.n_obs_scalar) < self.n_shots
 
+    def rows_out(self, dropped: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """Rows out of the adjustment with their points (quality control dropped them: held where they were
+        left, without their rays): a shot with any dropped vertex; never an offset's pseudo-observation."""
+        out = np.zeros(self.n_obs_scalar, bool)
+        out[:self.n_shots] = np.any(np.asarray(dropped, bool)[self.shot_point_index], axis=1)
+        return out
+
     def row_table(self) -> dict:
         """``kind`` of every row: 0 a shot, 1 a track offset's pseudo-observation; ``track`` its track; ``image``
         -1 (no image's row)."""

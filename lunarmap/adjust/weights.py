@@ -132,6 +132,8 @@ class Weights:
         """
         if not getattr(term, "uses_points", False):
             return np.zeros(term.n_obs_scalar, bool)
+        if hasattr(term, "rows_out"):          # rows on several points (altimetry shots): the term's own rule
+            return np.asarray(term.rows_out(np.asarray(self.dropped_points, bool)), bool)
         return np.asarray(self.dropped_points, bool)[np.asarray(term.point_index, np.int64)]
 
     def control_downweighted(self) -> NDArray[np.bool_]:
