@@ -69,6 +69,9 @@ _LAZY = {
     "NavigationSpec": ("lunarmap.adjust", "NavigationSpec"),
     "JitterSpec": ("lunarmap.adjust", "JitterSpec"),
     "write_adjusted": ("lunarmap.adjust", "write_adjusted"),
+    # laser altimetry (LOLA-like shot tables) as observations: build_block(..., altimetry=[LaserAltimetry(...)])
+    "LaserAltimetry": ("lunarmap.adjust", "LaserAltimetry"),
+    "read_altimetry": ("lunarmap.io.altimetry", "read_altimetry"),
     # ground coordinates (body-fixed metres) <-> planetocentric longitude, latitude (degrees), height (metres)
     "xyz_to_lonlat_height": ("lunarmap.camera.geodesy", "xyz_to_lonlat_height"),
     "lonlat_height_to_xyz": ("lunarmap.camera.geodesy", "lonlat_height_to_xyz"),

@@ -74,6 +74,8 @@ __all__ = [
     "TerrainInputError",
     "DtmCrsError",
     "DtmCoverageError",
+    "AltimetryInputError",
+    "AltimetryCoverageError",
     "QualityControlInputError",
     "QualityControlWarning",
     "VarianceComponentError",
@@ -248,6 +250,15 @@ class DtmCrsError(TerrainInputError):
 
 class DtmCoverageError(TerrainInputError):
     """A reference DTM covers none of the block's tie points (outside its grid or on NaN nodes)."""
+
+
+class AltimetryInputError(TerrainInputError):
+    """A laser-altimetry shot table cannot serve as observations (missing column, NaN value, a track with
+    one shot, bad sigma, unreadable file); the message names the file, the column or the track."""
+
+
+class AltimetryCoverageError(AltimetryInputError):
+    """No laser-altimetry shot falls inside the tie points' triangulation (the tracks miss the block)."""
 
 
 # --- ISD JSON files (lunarmap.orientation.isd_reader, feature isd-json) -----

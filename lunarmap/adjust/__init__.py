@@ -17,6 +17,8 @@ control points and full posterior precision.
   (issue 30), one variance-component group per DTM, snooped like the others;
 * :class:`JitterSmoothness` (:mod:`.jitter`) -- the smoothness prior of line-scan jitter splines
   (``SensorImageModel(jitter_lines=...)``), an observation group of its own.
+* :class:`LaserAltimetry` (:mod:`.altimetry`) -- laser-altimetry shots (LOLA-like tracks) observing the
+  tie points' triangulated surface, with per-track offsets (and drifts); one group per instrument.
 """
 
 from ..errors import (
@@ -28,6 +30,7 @@ from ..errors import (
     NetworkFormatError,
     UnobservedParameterError,
 )
+from .altimetry import AltimetryObservations, LaserAltimetry, altimetry_observations
 from .bal import BALData, bal_to_problem, problem_to_bal_cameras, read_bal, write_bal
 from .block import Block, BlockResult, NavigationSpec, build_block, navigation_observations, solve_block
 from .collinearity import FrameModel, frame_jacobians, project_frame
@@ -66,6 +69,7 @@ __all__ = [
     "lonlat_priors", "lonlat_covariance_to_xyz",
     "ControlNetwork", "read_network", "write_network", "network_from_tiepoints", "merge_networks",
     "NavigationObservations", "JitterSmoothness", "JitterSpec", "ReferenceDtm", "DtmGrid", "DtmHeights", "dtm_heights",
+    "LaserAltimetry", "AltimetryObservations", "altimetry_observations",
     "ObservationGroups", "VarianceComponents", "estimate_variance_components", "observation_groups",
     "variance_component_covariance",
     "ScaledTerm", "Weights", "reweighted_problem", "QCOptions", "QCReport", "QCResult", "quality_control",

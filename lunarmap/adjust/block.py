@@ -33,6 +33,7 @@ from ..camera.corrections import FrameCorrections, LineScanCorrections, PushFram
 from ..camera.geodesy import enu_basis, xyz_to_lonlat_height
 from ..camera.sensor import SensorModel
 from ..errors import AdjustmentInputError, UnobservedParameterError
+from .altimetry import AltimetryObservations, LaserAltimetry, altimetry_observations
 from .intersection import intersect_points
 from .jitter import JitterSmoothness, JitterSpec
 from .navigation import NavigationObservations
@@ -166,6 +167,8 @@ class Block:
     navigation : NavigationObservations or None
     terrain : list of DtmHeights
         The reference-DTM terms (one per DTM), in the order given.
+    altimetry : list of AltimetryObservations
+        The laser-altimetry terms (one per instrument), in the order given.
     starts : xarray.Dataset or None
         The start-value decisions of :func:`build_block` (points started from a best guess, and why).
     jitter : JitterSmoothness or None
@@ -182,6 +185,7 @@ class Block:
     #: (:func:`~lunarmap.adjust.start.screen_starts`); None for a block not built by :func:`build_block`
     starts: xr.Dataset | None = None
     jitter: JitterSmoothness | None = None
+    altimetry: list[AltimetryObservations] = field(default_factory=list)
 
     @property
     def sensors(self) -> dict[str, SensorModel]:
@@ -192,7 +196,7 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
                 navigation: NavigationSpec | None = None, times: Mapping[str, float] | None = None,
                 representation: str = "covariance", terrain: Sequence[ReferenceDtm] = (),
                 unintersectable: str = "raise", max_range: float = MAX_RANGE,
-                jitter: JitterSpec | None = None) -> Block:
+                jitter: JitterSpec | None = None, altimetry: Sequence[LaserAltimetry] = ()) -> Block:
     """Build an adjustment block (see the module docstring).
 
     Parameters
@@ -225,6 +229,10 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
         A cubic B-spline attitude correction (knots every ``jitter.knot_lines`` lines) on top of the
         polynomial of the line-scan images (all, or ``jitter.images``), with its smoothness prior as an
         observation group of its own (``Block.jitter``, :mod:`lunarmap.adjust.jitter`).
+    altimetry : sequence of LaserAltimetry
+        Laser-altimetry shots observing the surface the tie points span (:mod:`lunarmap.adjust.altimetry`),
+        with an offset (and drift) per track; shots outside the points' triangulation are skipped
+        (``block.altimetry[k].skipped``). The block is then solved on its whole normal equations.
 
     Returns
     -------
@@ -245,6 +253,8 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
         A reference DTM without a Moon CRS, covering no tie point, or unreadable.
     JitterKnotSpacingError
         A jitter knot spacing below one line.
+    AltimetryInputError, AltimetryCoverageError
+        A bad shot table, or no shot inside the tie points' triangulation.
     """
     net = network_from_tiepoints(network) if isinstance(network, xr.Dataset) else network
     if not isinstance(net, ControlNetwork):
@@ -313,8 +323,15 @@ def build_block(sensors: Mapping[str, SensorModel], network: ControlNetwork | xr
     if jitter is not None:
         smooth = JitterSmoothness(model, jitter.sigma, jitter.zero_sigma)
         terms.append(smooth)
+    alts = []
+    for alt in altimetry:
+        if not isinstance(alt, LaserAltimetry):
+            raise AdjustmentInputError(f"altimetry must be LaserAltimetry objects, got {type(alt).__name__}")
+        cand = np.isin(net.point_type, list(alt.point_types))
+        alts.append(altimetry_observations(alt, X0, model.n_images * model.n_params, model.n_images, cand))
+    terms += alts
     problem = net.to_problem(model, params0, points=X0, terms=terms, representation=representation)
-    return Block(names, model, net, problem, nav, dtms, starts, smooth)
+    return Block(names, model, net, problem, nav, dtms, starts, jitter=smooth, altimetry=alts)
 
 
 @dataclass

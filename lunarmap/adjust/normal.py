@@ -16,7 +16,8 @@ from .problem import BundleProblem
 from .schur import SchurStructure, inv_sym3, normal_blocks, whiten
 
 __all__ = ["AdjustmentState", "Linearization", "Terms", "linearize", "reduced_system", "back_substitute",
-           "evaluate_cost", "image_residuals", "prior_terms", "split_extra", "term_linearize", "term_residuals"]
+           "evaluate_cost", "image_residuals", "prior_terms", "split_extra", "term_linearize", "term_residuals",
+           "full_design", "full_system"]
 
 
 @dataclass
@@ -123,6 +124,9 @@ class Terms:
         self.problem = problem
         self.n_cam_red = problem.n_images * problem.model.n_params
         self.n_extra = sum(t.n_extra for t in problem.terms)
+        #: some term's rows couple several points, or points with reduced unknowns (laser altimetry): the
+        #: point blocks are not independent and the normal equations are solved whole (:func:`full_system`)
+        self.coupled = any(getattr(t, "couples_points", False) for t in problem.terms)
 
     def linearize(self, cam_params, extra, points=None):
         """Whitened residuals, Jacobian on the reduced unknowns, and the point partials of point-observing
@@ -135,7 +139,12 @@ class Terms:
         for t in self.problem.terms:
             r, J, Jp = term_linearize(t, cam_params, extra[s:s + t.n_extra], points)
             if Jp is not None:
-                xp.append((row0 + np.arange(r.size), np.asarray(t.point_index, np.int64), np.asarray(Jp, float)))
+                pi, Jp = np.asarray(t.point_index, np.int64), np.asarray(Jp, float)
+                rows = row0 + np.arange(r.size)
+                if pi.ndim == 2:
+                    # a row observing several points (laser altimetry: the triangle's vertices): one entry each
+                    rows, pi, Jp = np.repeat(rows, pi.shape[1]), pi.reshape(-1), Jp.reshape(-1, 3)
+                xp.append((rows, pi, Jp))
             row0 += r.size
             # each term's Jacobian uses [cams | its own extras]; map its extras to the global slot
             J = sp.csr_matrix(J)
@@ -181,7 +190,8 @@ def linearize(problem: BundleProblem, state: AdjustmentState, structure: SchurSt
         cost += float(np.sum(rr * rr))
     rx, Jx, xp = terms.linearize(state.cam_params, state.extra, state.points)
     if xp is not None:
-        # point-only rows (reference DTM heights): rank-1 additions to the point blocks, like control points
+        # point-only rows (reference DTM heights): rank-1 additions to the point blocks, like control points;
+        # the diagonal blocks of rows coupling several points (altimetry) alike (their cross blocks: full_system)
         rows, idx, Jp = xp
         np.add.at(V, idx, Jp[:, :, None] * Jp[:, None, :])
         np.add.at(gp, idx, Jp * rx[rows][:, None])
@@ -262,3 +272,77 @@ def back_substitute(lin: Linearization, structure: SchurStructure, Vinv: NDArray
     Wdc = np.einsum("nij,ni->nj", lin.W, dc[o.cam_idx])
     t = -lin.gp - structure.pt_agg @ Wdc
     return np.einsum("nij,nj->ni", Vinv, t)
+
+
+def full_design(lin: Linearization, problem: BundleProblem, terms: Terms, fixed_pt: NDArray):
+    """The whole whitened Jacobian ``A`` (CSR, columns ``[reduced unknowns | 3 n_pt point coordinates]``) and
+    residuals ``r`` of all rows: image coordinates (2 per measurement), term rows, weighted control points (3 each).
+
+    For problems whose terms couple points (:attr:`Terms.coupled`); fixed points' columns are zero.
+    """
+    o = problem.obs
+    n_red = terms.n_cam_red + terms.n_extra
+    n_pt = problem.n_points
+    p = lin.Ac.shape[2]
+    n = o.n
+    rows_i = np.arange(2 * n).reshape(n, 2)
+    Ai_r = np.broadcast_to(rows_i[:, :, None], (n, 2, p + 3))
+    Ai_c = np.concatenate([np.broadcast_to((o.cam_idx[:, None] * p + np.arange(p))[:, None, :], (n, 2, p)),
+                           np.broadcast_to((n_red + 3 * o.pt_idx[:, None] + np.arange(3))[:, None, :], (n, 2, 3))],
+                          axis=2)
+    Ai_v = np.concatenate([lin.Ac, lin.Ap], axis=2)
+    parts_r, parts_c, parts_v = [Ai_r.ravel()], [Ai_c.ravel()], [Ai_v.ravel()]
+    res = [lin.r.ravel()]
+    row0 = 2 * n
+    m_t = lin.rx.size
+    if m_t:
+        if lin.Jx is not None:
+            Jx = sp.coo_matrix(lin.Jx)
+            parts_r.append(row0 + Jx.row)
+            parts_c.append(Jx.col)
+            parts_v.append(Jx.data)
+        if lin.xp_rows is not None and lin.xp_idx is not None and lin.xp_J is not None:
+            keep = ~fixed_pt[lin.xp_idx]
+            parts_r.append(np.repeat(row0 + lin.xp_rows[keep], 3))
+            parts_c.append((n_red + 3 * lin.xp_idx[keep][:, None] + np.arange(3)).ravel())
+            parts_v.append(lin.xp_J[keep].ravel())
+        res.append(lin.rx)
+        row0 += m_t
+    if lin.prior_r is not None and problem.priors is not None:
+        pr = problem.priors
+        m = ~pr.fixed
+        idx = pr.idx[m]
+        W = pr.sqrt_weight()[m]
+        k = idx.size
+        rr = np.broadcast_to((row0 + np.arange(3 * k).reshape(k, 3))[:, :, None], (k, 3, 3))
+        cc = np.broadcast_to((n_red + 3 * idx[:, None] + np.arange(3))[:, None, :], (k, 3, 3))
+        parts_r.append(rr.ravel())
+        parts_c.append(cc.ravel())
+        parts_v.append(W.ravel())
+        res.append(lin.prior_r.ravel())
+        row0 += 3 * k
+    A = sp.csr_matrix((np.concatenate(parts_v), (np.concatenate(parts_r), np.concatenate(parts_c))),
+                      shape=(row0, n_red + 3 * n_pt))
+    A.sum_duplicates()
+    return A, np.concatenate(res)
+
+
+def full_system(lin: Linearization, problem: BundleProblem, terms: Terms, mu: float, free_red: NDArray,
+                fixed_pt: NDArray):
+    """Damped normal equations of all unknowns (reduced and points) for coupled terms (:attr:`Terms.coupled`).
+
+    Returns ``N + mu D`` (CSR, free unknowns only: ``free_red`` then the free points' coordinates), its
+    right-hand side ``-g``, the damping diagonal of the reduced unknowns (all of them) and the free mask of
+    the whole vector. The points are not eliminated (their blocks are coupled by the terms' rows); the size
+    is ``n_red + 3 n_pt``: blocks of a few thousand unknowns.
+    """
+    A, r = full_design(lin, problem, terms, fixed_pt)
+    N = (A.T @ A).tocsr()
+    g = A.T @ r
+    free = np.concatenate([free_red, np.repeat(~fixed_pt, 3)])
+    diag = N.diagonal()
+    D = np.clip(diag, 1e-6, 1e32)
+    if mu != 0.0:
+        N = (N + sp.diags(mu * D)).tocsr()
+    idx = np.flatnonzero(free)
+    return N[idx][:, idx].tocsr(), -g[idx], D[:free_red.size], free

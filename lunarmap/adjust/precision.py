@@ -33,7 +33,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from ..errors import DatumDefectError
+from ..errors import AdjustmentInputError, DatumDefectError
 from .factor import Factorizer
 
 try:
@@ -534,6 +534,9 @@ def posterior_precision(result, method: str = "auto", redundancy: bool = False,
 
     pb = result.problem
     st = result.structure
+    if Terms(pb).coupled:
+        # rows coupling several points (laser altimetry): the whole normal matrix, inverted densely
+        return _coupled_precision(result, redundancy, scale_by_sigma0)
     if method == "auto":
         method = "sparse" if (_point_cov_kernel is not None and getattr(st, "compiled", False)) else "dense"
     if method == "dense":
@@ -740,3 +743,93 @@ def _dense_precision(result, redundancy: bool, scale_by_sigma0: bool) -> Precisi
         term_red = _term_redundancy(pb, lin, terms, lambda a, b: Q[a, b], pt_q)
     return Precision(cam_cov, pt_cov, extra_cov, Q, red, result.sigma0, "dense-lapack", np.zeros(0, np.int64),
                      ctl_red, term_red, Q[:n_cam_red, n_cam_red:] * s2)
+
+
+#: rows of the design whose quadratic forms ``a^T Q a`` are formed at once (memory: rows x unknowns doubles)
+_COUPLED_CHUNK_ROWS = 4096
+#: largest number of free unknowns whose dense normal matrix the coupled precision inverts (1.2 GB of doubles)
+COUPLED_DENSE_LIMIT = 12000
+
+
+def _coupled_precision(result, redundancy: bool, scale_by_sigma0: bool) -> Precision:
+    """Precision of a problem with point-coupling terms (:attr:`~lunarmap.adjust.normal.Terms.coupled`): the
+    dense inverse of the whole normal matrix ``A^T A`` (reduced unknowns and points; Jacobi-scaled Cholesky),
+    redundancy numbers ``1 - a_i^T Q a_i`` of every row from the sparse design in chunks."""
+    from .normal import Terms, full_design, linearize, prior_terms
+
+    pb = result.problem
+    st = result.structure
+    p = st.p
+    terms = Terms(pb)
+    fixed_pt = pb.point_fixed()
+    lin = linearize(pb, result.state, st, terms, fixed_pt)
+    A, _ = full_design(lin, pb, terms, fixed_pt)
+    n_red = result.free_red.size
+    free = np.concatenate([result.free_red, np.repeat(~fixed_pt, 3)])
+    fi = np.flatnonzero(free)
+    if fi.size > COUPLED_DENSE_LIMIT:
+        raise AdjustmentInputError(
+            f"the block's precision with point-coupling observations (laser altimetry) is the dense inverse of its "
+            f"{fi.size} unknowns: more than {COUPLED_DENSE_LIMIT}; adjust a smaller block (fewer tie points)")
+    Af = A[:, fi].tocsc()
+    Nd = (Af.T @ Af).toarray()
+    dg = np.diag(Nd).copy()
+    if np.any(dg <= 0) or not np.all(np.isfinite(dg)):
+        raise DatumDefectError(f"{int(np.sum(~(dg > 0)))} unknown(s) have no weight in the normal equations")
+    d = 1.0 / np.sqrt(dg)
+    Nd *= d[:, None]
+    Nd *= d[None, :]
+    c, info = sla.lapack.dpotrf(Nd, lower=True, overwrite_a=True, clean=False)
+    if info != 0:
+        raise DatumDefectError(f"the normal matrix at the solution is not positive definite (LAPACK info {info})")
+    Qs, info = sla.lapack.dpotri(c, lower=True, overwrite_c=True)
+    if info != 0:
+        raise DatumDefectError(f"inverting the normal matrix failed (LAPACK info {info})")
+    il = np.tril_indices_from(Qs, -1)
+    Qs[il[::-1]] = Qs[il]
+    Qs *= d[:, None]
+    Qs *= d[None, :]
+    if np.max(np.diag(Qs) * dg) > MAX_SCALED_VARIANCE:
+        raise DatumDefectError("the normal matrix at the solution is numerically singular: the datum is not defined")
+    s2 = result.sigma0 ** 2 if scale_by_sigma0 else 1.0
+    n_all = free.size
+    pos = -np.ones(n_all, np.int64)
+    pos[fi] = np.arange(fi.size)
+
+    def block(ix: NDArray) -> NDArray:
+        """Cofactors of the (free) unknowns ``ix (..., k)`` as ``(..., k, k)``; zero where fixed."""
+        q = pos[ix]
+        out = Qs[np.maximum(q, 0)[..., :, None], np.maximum(q, 0)[..., None, :]]
+        return np.where((q[..., :, None] >= 0) & (q[..., None, :] >= 0), out, 0.0)
+
+    n_cam_red = terms.n_cam_red
+    cam_cov = block(np.arange(n_cam_red).reshape(-1, p)) * s2
+    pt_q = block(n_red + np.arange(3 * pb.n_points).reshape(-1, 3))
+    extra_cov = block(np.arange(n_cam_red, n_red)) * s2
+    Q = block(np.arange(n_red)) if n_red <= DENSE_Q_LIMIT else None
+    ce = Qs[np.maximum(pos[:n_cam_red], 0)][:, np.maximum(pos[n_cam_red:n_red], 0)] if n_red > n_cam_red else \
+        np.zeros((n_cam_red, 0))
+    ce = np.where((pos[:n_cam_red, None] >= 0) & (pos[None, n_cam_red:n_red] >= 0), ce, 0.0)
+    red = ctl_red = term_red = None
+    if redundancy:
+        A = Af.tocsr()
+        quad = np.zeros(A.shape[0])
+        for r0 in range(0, A.shape[0], _COUPLED_CHUNK_ROWS):
+            Ak = A[r0:r0 + _COUPLED_CHUNK_ROWS]
+            D = Ak @ Qs                                                   # (rows, n_free) dense
+            row_of = np.repeat(np.arange(Ak.shape[0]), np.diff(Ak.indptr))
+            quad[r0:r0 + Ak.shape[0]] = np.bincount(row_of, weights=Ak.data * D[row_of, Ak.indices],
+                                                    minlength=Ak.shape[0])
+        rr = 1.0 - quad
+        o = pb.obs
+        red = rr[:2 * o.n].reshape(o.n, 2)
+        m_t = lin.rx.size
+        term_red, s0 = [], 2 * o.n
+        for t in pb.terms:
+            term_red.append(rr[s0:s0 + t.n_obs_scalar])
+            s0 += t.n_obs_scalar
+        assert s0 == 2 * o.n + m_t
+        if prior_terms(pb, result.state.points) is not None:
+            ctl_red = rr[s0:].reshape(-1, 3)
+    return Precision(cam_cov, pt_q * s2, extra_cov, Q, red, result.sigma0, "dense-coupled", np.zeros(0, np.int64),
+                     ctl_red, term_red, ce * s2)

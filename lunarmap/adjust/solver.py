@@ -38,7 +38,16 @@ from numpy.typing import NDArray
 from ..blas import single_threaded_blas
 from ..errors import AdjustmentDivergedError, DatumDefectError
 from .factor import Factorizer
-from .normal import AdjustmentState, Linearization, Terms, back_substitute, evaluate_cost, linearize, reduced_system
+from .normal import (
+    AdjustmentState,
+    Linearization,
+    Terms,
+    back_substitute,
+    evaluate_cost,
+    full_system,
+    linearize,
+    reduced_system,
+)
 from .problem import BundleProblem
 from .schur import SchurStructure
 
@@ -144,7 +153,10 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
     if not np.isfinite(lin.cost):
         raise AdjustmentDivergedError("the initial cost is not finite (a point behind a camera or at infinity?)")
     if opt.check_datum:
-        S0, _, _, _ = reduced_system(lin, structure, terms, 0.0, free_red)
+        if terms.coupled:
+            S0 = full_system(lin, problem, terms, 0.0, free_red, fixed_pt)[0]
+        else:
+            S0, _, _, _ = reduced_system(lin, structure, terms, 0.0, free_red)
         _check_datum(S0, opt.backend)
 
     cost0 = lin.cost
@@ -156,7 +168,11 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
     converged = False
     while n_iter < opt.max_iterations:
         n_iter += 1
-        S, rhs, Vinv, D = reduced_system(lin, structure, terms, mu, free_red)
+        if terms.coupled:
+            # rows coupling several points (laser altimetry): the whole normal equations, points not eliminated
+            S, rhs, D, free_all = full_system(lin, problem, terms, mu, free_red, fixed_pt)
+        else:
+            S, rhs, Vinv, D = reduced_system(lin, structure, terms, mu, free_red)
         try:
             solve_S = factorize(S)
         except DatumDefectError:
@@ -165,9 +181,15 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
                 raise
             mu, nu = max(mu, 1e-12) * nu, 2.0 * nu
             continue
-        dred = np.zeros(free_red.size)
-        dred[free_red] = solve_S(rhs)
-        dp = back_substitute(lin, structure, Vinv, dred, terms, problem)
+        if terms.coupled:
+            dall = np.zeros(free_all.size)
+            dall[free_all] = solve_S(rhs)
+            dred = dall[:free_red.size]
+            dp = dall[free_red.size:].reshape(-1, 3)
+        else:
+            dred = np.zeros(free_red.size)
+            dred[free_red] = solve_S(rhs)
+            dp = back_substitute(lin, structure, Vinv, dred, terms, problem)
         dp[fixed_pt] = 0.0
         dc = dred[:terms.n_cam_red].reshape(-1, p)
         new = AdjustmentState(state.cam_params + dc, state.points + dp, state.extra + dred[terms.n_cam_red:],

@@ -227,8 +227,9 @@ def observation_groups(problem: BundleProblem, image_group: NDArray | None = Non
         g = -np.ones(t.n_obs_scalar, np.int64)
         table = getattr(t, "row_table", None)
         if getattr(t, "variance_group", False):
-            # a reference DTM: all its rows one group (its own variance component)
-            g[:] = len(names)
+            # a reference DTM: all its rows one group (its own variance component); an altimeter: its shots
+            # (its offsets' pseudo-observations in no group)
+            g[t.group_rows() if hasattr(t, "group_rows") else slice(None)] = len(names)
             names.append(str(getattr(t, "name", f"term {len(terms)}")))
         elif navigation and table is not None:
             rt = table()

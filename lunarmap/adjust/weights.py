@@ -71,7 +71,8 @@ class ScaledTerm:
     def linearize(self, cam_params: NDArray, extra: NDArray, points: NDArray | None = None):
         if getattr(self.term, "uses_points", False):     # a point-observing term (reference DTM heights)
             r, J, Jp = self.term.linearize(cam_params, extra, points)
-            return r / self.factor, (self._scale @ sp.csr_matrix(J)).tocsr(), Jp / self.factor[:, None]
+            f = self.factor.reshape((-1,) + (1,) * (np.ndim(Jp) - 1))   # (m, 3) or (m, k, 3) partials
+            return r / self.factor, (self._scale @ sp.csr_matrix(J)).tocsr(), Jp / f
         r, J = self.term.linearize(cam_params, extra)
         return r / self.factor, (self._scale @ sp.csr_matrix(J)).tocsr()
 
@@ -131,6 +132,8 @@ class Weights:
         """
         if not getattr(term, "uses_points", False):
             return np.zeros(term.n_obs_scalar, bool)
+        if hasattr(term, "rows_out"):          # rows on several points (altimetry shots): the term's own rule
+            return np.asarray(term.rows_out(np.asarray(self.dropped_points, bool)), bool)
         return np.asarray(self.dropped_points, bool)[np.asarray(term.point_index, np.int64)]
 
     def control_downweighted(self) -> NDArray[np.bool_]:

@@ -3,6 +3,7 @@ full-size images written into ISIS cubes stripe by stripe), stereo geometry, adj
 
 from ..errors import SimulationWarning
 from .albedo import TiledAlbedo, tiled_albedo
+from .altimetry import SimulatedAltimetry, altimetry_tracks
 from .blocks import Measurements, SimulatedBlock, frame_block, frame_block_height, linescan_site, local_enu, observe
 from .compiled_render import RenderedCube, RenderScene, render_cube, render_window
 from .dlr import Blunders, DlrSimulation, dlr_block, inject_blunders
@@ -31,5 +32,5 @@ __all__ = [
     "render_cube", "render_window", "RenderScene", "RenderedCube", "TiledAlbedo", "tiled_albedo",
     "lroc_site", "SimulatedSite", "SiteImageSpec", "APOLLO11_LIKE",
     "dlr_block", "inject_blunders", "DlrSimulation", "Blunders",
-    "frame_block_height", "reference_dtm", "SimulatedDtm",
+    "frame_block_height", "reference_dtm", "SimulatedDtm", "altimetry_tracks", "SimulatedAltimetry",
 ]

@@ -56,6 +56,16 @@ Layout (every relative path is taken relative to the configuration file's folder
     name = "lola"                    # optional (default the file's stem); letters, digits, _ . -
     slope_baseline = 48.0            # optional: slope of the partials from heights this far apart, m
                                      # (a noisy DTM's cell slopes are its noise; see lunarmap.adjust.terrain)
+    [[adjust.terrain.altimetry]]     # optional, one table per altimeter (lunarmap.adjust.altimetry): its shots
+                                     # observe the tie points' triangulated surface, an offset per track
+    path = "lola_shots.csv"          # shot table: track, time [s], lon, lat [deg], radius [m], optional sigma [m]
+                                     # (CSV or netCDF; lunarmap.io.altimetry)
+    sigma = 0.5                      # a-priori radial sigma of one shot, m
+    interpolation_sigma = 1.0        # optional: the tie points' surface against the terrain, m (default 0)
+    offset_sigma = 30.0              # optional: a-priori sigma of every track's offset, m (default: free offsets,
+                                     # the block's radius then comes from the navigation)
+    drift = false                    # optional: also a radial drift per track (m/s)
+    name = "lola"                    # optional (default the file's stem)
 
     [adjust.jitter]                  # optional: line-scan attitude jitter splines (lunarmap.adjust.jitter)
     knot_lines = 100.0               # knot spacing of the cubic B-spline, image lines (>= 1)
@@ -105,7 +115,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["ImageSpec", "NavigationConfig", "QCConfig", "TerrainDtmConfig", "RunConfig", "load_config",
+__all__ = ["ImageSpec", "NavigationConfig", "QCConfig", "TerrainDtmConfig", "TerrainAltimetryConfig", "RunConfig", "load_config",
            "config_from_dict"]
 
 _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
@@ -206,6 +216,39 @@ class JitterConfig:
 
 
 @dataclass(frozen=True)
+class TerrainAltimetryConfig:
+    """One altimeter of ``[[adjust.terrain.altimetry]]`` (see :class:`lunarmap.adjust.LaserAltimetry`).
+
+    Attributes
+    ----------
+    name : str
+        Its observation group is ``"altimetry <name>"``.
+    path : Path
+        The shot table (absolute; CSV or netCDF, :mod:`lunarmap.io.altimetry`).
+    sigma : float
+        A-priori radial sigma of one shot, metres.
+    interpolation_sigma : float
+        Sigma of the tie points' triangulated surface against the terrain, metres.
+    offset_sigma : float or None
+        A-priori sigma of every track's offset, metres (None: free).
+    drift : bool
+        A radial drift per track too.
+    """
+
+    name: str
+    path: Path
+    sigma: float
+    interpolation_sigma: float = 0.0
+    offset_sigma: float | None = None
+    drift: bool = False
+
+    @property
+    def group(self) -> str:
+        """The observation group's name (variance component, QC decisions)."""
+        return f"altimetry {self.name}"
+
+
+@dataclass(frozen=True)
 class RunConfig:
     """A validated run configuration (see the module docstring)."""
 
@@ -231,6 +274,7 @@ class RunConfig:
     terrain: tuple[TerrainDtmConfig, ...] = ()
     jitter: JitterConfig | None = None
     html: bool = True
+    altimetry: tuple[TerrainAltimetryConfig, ...] = ()
     extra: dict[str, Any] = field(default_factory=dict)
 
     def digest(self) -> str:
@@ -261,7 +305,10 @@ _QC = {"steps": (list, False), "sequent_limit_km": ((int, float), False), "robus
        "robust_scale": (str, False), "baarda_limit": ((int, float), False), "baarda_per_round": (str, False),
        "baarda_sigma0": (str, False), "baarda_separable": (bool, False),
        "downweight_factor": ((int, float), False), "max_rounds": (int, False), "max_seconds": ((int, float), False)}
-_TERRAIN = {"dtm": (list, True)}
+_TERRAIN = {"dtm": (list, False), "altimetry": (list, False)}
+_TERRAIN_ALT = {"path": (str, True), "sigma": ((int, float), True), "name": (str, False),
+                "interpolation_sigma": ((int, float), False), "offset_sigma": ((int, float), False),
+                "drift": (bool, False)}
 _JITTER = {"knot_lines": ((int, float), True), "sigma": ((int, float), True), "zero_sigma": ((int, float), False),
            "images": (list, False)}
 _TERRAIN_DTM = {"path": (str, True), "sigma": ((int, float), True), "name": (str, False),
@@ -379,10 +426,11 @@ def _terrain_config(t: Any, base: Path, src: str) -> tuple[TerrainDtmConfig, ...
     if not isinstance(t, dict):
         raise ConfigError(f"{src}: [adjust.terrain] must be a table")
     _check_table(t, _TERRAIN, "adjust.terrain", src)
-    if not t["dtm"]:
-        raise ConfigError(f"{src}: adjust.terrain.dtm must list at least one [[adjust.terrain.dtm]] table")
+    if not t.get("dtm") and not t.get("altimetry"):
+        raise ConfigError(f"{src}: [adjust.terrain] must list at least one [[adjust.terrain.dtm]] or "
+                          "[[adjust.terrain.altimetry]] table")
     out: list[TerrainDtmConfig] = []
-    for k, e in enumerate(t["dtm"]):
+    for k, e in enumerate(t.get("dtm", [])):
         where = f"adjust.terrain.dtm[{k}]"
         if not isinstance(e, dict):
             raise ConfigError(f"{src}: {where} must be a table")
@@ -402,6 +450,32 @@ def _terrain_config(t: Any, base: Path, src: str) -> tuple[TerrainDtmConfig, ...
             if not (baseline > 0 and baseline < float("inf")):
                 raise ConfigError(f"{src}: {where}.slope_baseline must be > 0 metres, got {e['slope_baseline']!r}")
         out.append(TerrainDtmConfig(name, path, sigma, baseline))
+    return tuple(out)
+
+
+def _altimetry_config(t: Any, base: Path, src: str) -> tuple[TerrainAltimetryConfig, ...]:
+    out: list[TerrainAltimetryConfig] = []
+    for k, e in enumerate(t.get("altimetry", []) if isinstance(t, dict) else []):
+        where = f"adjust.terrain.altimetry[{k}]"
+        if not isinstance(e, dict):
+            raise ConfigError(f"{src}: {where} must be a table")
+        _check_table(e, _TERRAIN_ALT, where, src)
+        path = _path(base, e["path"], f"{where}.path", src)
+        name = e.get("name", path.stem)
+        if not _NAME.match(name):
+            raise ConfigError(f"{src}: {where}.name {name!r} may hold only letters, digits, '_', '.', '-'")
+        if any(d.name == name for d in out):
+            raise ConfigError(f"{src}: {where}.name {name!r} repeats (each altimeter is its own observation group)")
+        vals = {}
+        for key, zero_ok in (("sigma", False), ("interpolation_sigma", True), ("offset_sigma", False)):
+            if key not in e:
+                continue
+            v = float(e[key])
+            if not ((v >= 0 if zero_ok else v > 0) and v < float("inf")):
+                raise ConfigError(f"{src}: {where}.{key} must be {'>= 0' if zero_ok else '> 0'} metres, got {e[key]!r}")
+            vals[key] = v
+        out.append(TerrainAltimetryConfig(name, path, vals["sigma"], vals.get("interpolation_sigma", 0.0),
+                                          vals.get("offset_sigma"), bool(e.get("drift", False))))
     return tuple(out)
 
 
@@ -471,7 +545,8 @@ def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",
         qc = _qc_config(adj["qc"], nav is not None, max(per_group.values()), src)
     terrain = _terrain_config(adj["terrain"], base_p, src) if "terrain" in adj else ()
     jitter = _jitter_config(adj["jitter"], [im.name for im in images], src) if "jitter" in adj else None
-    if terrain and qc is not None and "variance" in qc.steps and "baarda" in qc.steps \
+    altimetry = _altimetry_config(adj["terrain"], base_p, src) if "terrain" in adj else ()
+    if (terrain or altimetry) and qc is not None and "variance" in qc.steps and "baarda" in qc.steps \
             and qc.steps.index("variance") > qc.steps.index("baarda"):
         # the w-tests of the DTM heights rest on their sigma: tested at a wrong a-priori sigma (the DTM's
         # error is what the run estimates), good heights go or bad ones stay
@@ -511,7 +586,7 @@ def config_from_dict(d: Mapping[str, Any], base: str | os.PathLike[str] = ".",
         rpc_enabled=bool(rpc.get("enabled", True)), rpc_height_range=height_range, cell=cell, search=search,
         min_overlap=min_overlap, max_points=max_points or None, degree=degree, estimate_tie_variance=bool(adj.get("estimate_tie_variance", True)),
         ftol=float(adj.get("ftol", 1e-10)), navigation=nav, qc=qc, terrain=terrain, jitter=jitter,
-        html=bool(rep.get("html", True)))
+        html=bool(rep.get("html", True)), altimetry=altimetry)
 
 
 def load_config(path: str | os.PathLike[str]) -> RunConfig:

@@ -336,16 +336,20 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
     if cfg.jitter is not None:
         jitter = {"knot_lines": cfg.jitter.knot_lines, "sigma": cfg.jitter.sigma, "zero_sigma": cfg.jitter.zero_sigma,
                   "images": list(cfg.jitter.images) if cfg.jitter.images is not None else None}
+    # the altimeters alike (their shot tables' content in the key)
+    altimetry = [{"name": a.name, "path": str(a.path), "sigma": a.sigma, "interpolation_sigma": a.interpolation_sigma,
+                  "offset_sigma": a.offset_sigma, "drift": a.drift} for a in cfg.altimetry]
     k_adj = step_key("adjust", [cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, groups, names]
                      + ([qc] if qc is not None else [])
                      + ([{"jitter": jitter}] if jitter is not None else [])
                      + ([cfg.points_other_images] if points and cfg.points_other_images != "error" else [])
-                     + ([[{k: v for k, v in d.items() if k != "path"} for d in terrain]] if terrain else []),
+                     + ([[{k: v for k, v in d.items() if k != "path"} for d in terrain]] if terrain else [])
+                     + ([[{k: v for k, v in a.items() if k != "path"} for a in altimetry]] if altimetry else []),
                      [isd_key[n] for n in names] + [k_tie, file_digest(cfg.points) if cfg.points is not None else ""]
-                     + [file_digest(d.path) for d in cfg.terrain])
+                     + [file_digest(d.path) for d in cfg.terrain] + [file_digest(a.path) for a in cfg.altimetry])
     adj = node("adjust", k_adj, adjust_step, store, k_adj, names, groups, [rec[n]["isd"] for n in names], ties,
                points, cfg.degree, nav, cfg.estimate_tie_variance, cfg.ftol, attrs, qc, cfg.points_other_images,
-               terrain or None, jitter, out=[store.path("adjust", k_adj)])
+               terrain or None, jitter, altimetry or None, out=[store.path("adjust", k_adj)])
     k_ker = step_key("kernels", None, [k_adj, kernels_digest])
     node("kernels", k_ker, kernels_step, store, k_ker, names, adj, [rec[n]["isd"] for n in names],
          str(cfg.metakernel), out=[store.path("kernels", k_ker) / "kernels.json"])
@@ -765,6 +769,12 @@ def _run_locked(cfg: RunConfig, scheduler: Any, workers: int, report: bool | Non
                 return client
             return scheduler
 
+        if cfg.altimetry:
+            from ..io.altimetry import read_altimetry
+
+            # a bad shot table (missing column, NaN, a track of one shot) is named before any work
+            for a in cfg.altimetry:
+                read_altimetry(a.path)
         done = _execute(first, scheduler_for(first), progress)
         if cfg.terrain:
             from .checks import check_terrain_coverage

@@ -504,6 +504,20 @@ def write_report(result: Any, qc_truth: dict[str, Any] | None = None) -> Path:
         terrain_section = ("<h2 id=\"terrain\">Reference DTMs</h2><p>DTM heights observing the tie points "
                            "(one row per observation in <code>outputs/adjustment/terrain_residuals.nc</code>).</p>"
                            + _table(thead, trows, cls="num"))
+    if summary.get("altimetry"):
+        def fnum(v: Any, f: str = ".3f") -> str:
+            return format(v, f) if isinstance(v, (int, float)) and np.isfinite(v) else ""
+
+        arows = [[name, track, tr["shots"], fnum(tr["offset_m"]), fnum(tr["offset_sigma_m"])]
+                 for name, a in summary["altimetry"].items() for track, tr in a["tracks"].items()]
+        ahead = [("altimeter", "name of the [[adjust.terrain.altimetry]] table"), ("track", "track identifier"),
+                 ("shots", "shots of the track inside the tie points' triangulation"),
+                 ("offset (m)", "estimated radial offset of the track"), ("± (m)", "its posterior sigma")]
+        alt_groups = "; ".join(f"{html.escape(name)}: {a['shots']:,} shots ({a['outside_tie_points']:,} outside "
+                               f"the tie points), residual RMS {fnum(a['rms_residual_m'])} m, sigma scale {fnum(a['sigma_scale'])}"
+                               for name, a in summary["altimetry"].items())
+        terrain_section += ("<h2 id=\"altimetry\">Laser altimetry</h2><p>Shots observing the tie points' surface; "
+                            f"{alt_groups}.</p>" + _table(ahead, arows, cls="num"))
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>lunarmap run report</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em}}

@@ -616,7 +616,8 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
                 ties: Done, points: str | None, degree: int, navigation: dict[str, Any] | None,
                 estimate_tie_variance: bool, ftol: float, attrs: dict[str, Any],
                 qc: dict[str, Any] | None = None, other_images: str = "error",
-                terrain: Sequence[dict[str, Any]] | None = None, jitter: dict[str, Any] | None = None) -> Done:
+                terrain: Sequence[dict[str, Any]] | None = None, jitter: dict[str, Any] | None = None,
+                altimetry: Sequence[dict[str, Any]] | None = None) -> Done:
     """Adjust the block on the images' rigorous cameras; write the results as netCDF and adjusted ISDs.
 
     With ``qc`` (the fields of :class:`~lunarmap.workflows.config.QCConfig`) the adjustment is quality
@@ -636,6 +637,12 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
     ``jitter`` (the fields of :class:`~lunarmap.workflows.config.JitterConfig`): the line-scan images get a
     cubic B-spline attitude correction with its smoothness prior (:class:`~lunarmap.adjust.JitterSpec`), the
     prior an observation group ``"jitter smoothness"``; the adjusted ISDs then carry the spline's attitude.
+    ``altimetry`` (the fields of :class:`~lunarmap.workflows.config.TerrainAltimetryConfig`, one dict per
+    altimeter): laser-altimetry shots observe the tie points' triangulated surface, with an offset (and
+    drift) per track (:mod:`lunarmap.adjust.altimetry`), one group ``"altimetry <name>"`` each; the summary's
+    ``altimetry`` section reports its tracks' offsets with their sigma and its residual RMS. A bad shot table
+    or one missing the block raises :class:`~lunarmap.errors.AltimetryInputError` /
+    :class:`~lunarmap.errors.AltimetryCoverageError`.
     """
     t = time.perf_counter()
     if store.has("adjust", key):
@@ -648,6 +655,7 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
         network_from_tiepoints,
         read_network,
     )
+    from ..adjust.altimetry import LaserAltimetry
     from ..adjust.block import Block, BlockResult
     from ..adjust.export import adjusted_image_support
     from ..adjust.terrain import ReferenceDtm
@@ -680,7 +688,13 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
 
                 jspec = JitterSpec(jitter["knot_lines"], jitter["sigma"], jitter.get("zero_sigma"),
                                    jitter.get("images"))
-            block = build_block(cams, net, degree=degree, navigation=spec, terrain=refs, jitter=jspec)
+            alts = [LaserAltimetry(a["path"], a["sigma"], interpolation_sigma_m=a.get("interpolation_sigma", 0.0),
+                                   offset_sigma_m=a.get("offset_sigma"), drift=bool(a.get("drift", False)),
+                                   name=f"altimetry {a['name']}") for a in altimetry or ()]
+            block = build_block(cams, net, degree=degree, navigation=spec, terrain=refs, jitter=jspec, altimetry=alts)
+            for a, alt_term in zip(altimetry or (), block.altimetry):
+                _log.info("adjust: altimeter %s: %d shots on %d tracks observed, %d outside the tie points",
+                          a["name"], alt_term.n_shots, alt_term.n_tracks, alt_term.skipped)
             for d, term in zip(terrain or (), block.terrain):
                 _log.info("adjust: reference DTM %s: %d tie point heights observed (sigma %.3g m), %d outside it",
                           d["name"], term.n_obs_scalar, term.sigma, term.skipped)
@@ -736,6 +750,8 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
         terrain_ds = None
         if block.terrain:
             summary["terrain"], terrain_ds = _terrain_outputs(block, res, qc_out, est, list(terrain or ()))
+        if block.altimetry:
+            summary["altimetry"] = _altimetry_outputs(block, res, qc_out, list(altimetry or ()))
 
         def write(folder: Path) -> None:
             geo = {"crs": MOON_GEOGRAPHIC_CRS, **attrs}
@@ -790,6 +806,41 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
         path = store.write_dir("adjust", key, write)
         return Done("adjust", key, "", str(path), True, time.perf_counter() - t,
                     note=f"sigma0 {summary['sigma0']:.3f}")
+
+
+def _altimetry_outputs(block: Any, res: Any, qc_out: Any, altimetry: list[dict[str, Any]]) -> dict[str, Any]:
+    """The summary's ``altimetry`` section: per altimeter its shots (observed, outside the tie points,
+    down-weighted by quality control), the RMS of the final shot residuals (metres), its group's sigma scale
+    and, per track, the estimated offset (and drift) with its posterior sigma."""
+    base_terms = list(block.problem.terms)
+    result = res.result
+    prec = result.precision()
+    weights = qc_out.ledger.weights if qc_out is not None else None
+    vc = qc_out.variance if qc_out is not None else None
+    section: dict[str, Any] = {}
+    for a, term in zip(altimetry, block.altimetry):
+        t = next(i for i, x in enumerate(base_terms) if x is term)
+        s0 = sum(x.n_extra for x in base_terms[:t])
+        extra = np.asarray(result.state.extra[s0:s0 + term.n_extra], float)
+        sig = np.sqrt(np.clip(np.diag(prec.extra_cov)[s0:s0 + term.n_extra], 0.0, None))
+        r = np.asarray(term.residuals_m(result.points, extra), float)
+        down = np.zeros(term.n_obs_scalar, bool) if weights is None else np.asarray(weights.term_downweighted(t), bool)
+        ok = ~down[:term.n_shots]
+        scale = 1.0
+        if vc is not None and term.name in vc.names:
+            scale = float(vc.scale[vc.names.index(term.name)])
+        tracks = {str(n): {"offset_m": float(extra[k]), "offset_sigma_m": float(sig[k]),
+                           **({"drift_m_per_s": float(extra[term.n_tracks + k]),
+                               "drift_sigma_m_per_s": float(sig[term.n_tracks + k])} if term.drift else {}),
+                           "shots": int(np.sum(term.track_of == k))}
+                  for k, n in enumerate(term.track_names)}
+        section[a["name"]] = {
+            "group": term.name, "shots": int(term.n_shots), "outside_tie_points": int(term.skipped),
+            "dropped_tracks": int(term.dropped_tracks), "downweighted": int(down.sum()),
+            "rms_residual_m": float(np.sqrt(np.mean(r[ok] ** 2))) if ok.any() else float("nan"),
+            "sigma_apriori_m": float(a["sigma"]), "interpolation_sigma_m": float(a.get("interpolation_sigma", 0.0)),
+            "sigma_scale": scale, "tracks": tracks}
+    return section
 
 
 def _terrain_outputs(block: Any, res: Any, qc_out: Any, est: Any,

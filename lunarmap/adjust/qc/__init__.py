@@ -499,8 +499,7 @@ def _run_step(step: str, steps: list, ledger: Ledger, problem: BundleProblem, op
 def block_result(qc: QCResult, block):
     """A :class:`~lunarmap.adjust.block.BlockResult` of a quality-controlled :class:`~lunarmap.adjust.block.Block`
     (adjusted sensors, points, check points), the block's problem replaced by the final one."""
-    from ..block import Block, BlockResult
+    from ..block import BlockResult
 
-    return BlockResult(Block(block.names, block.model, block.network, qc.problem, block.navigation, block.terrain,
-                             block.starts, block.jitter),
-                       qc.result)
+    # every field of the block kept (terrain, jitter, altimetry...): only its problem is the QC's final one
+    return BlockResult(dataclasses.replace(block, problem=qc.problem), qc.result)

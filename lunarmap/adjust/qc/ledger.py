@@ -502,7 +502,8 @@ class Ledger:
         recorded as kind ``"terrain"`` with its point)."""
         self.weights.term_sigma[term][row] *= np.sqrt(factor)
         kind = self.term_kind(term)
-        point = int(self.terms[term].point_index[row]) if kind == "terrain" else -1
+        # a row observing several points (an altimetry shot) names its nearest one (first)
+        point = int(np.atleast_1d(self.terms[term].point_index[row])[0]) if kind == "terrain" else -1
         self.decisions.append(Decision(step, rnd, kind, int(row), int(image), point, int(component), float(value),
                                        float(redundancy), "downweighted", group, term=int(term)))
 

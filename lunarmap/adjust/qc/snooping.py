@@ -170,6 +170,8 @@ def w_tests(ledger: Ledger, sigma0: str = "apriori", min_redundancy: float = 0.0
 def _term_info(ledger: Ledger, t: int, row: int) -> tuple[int, int, str]:
     term = ledger.terms[t]
     table = getattr(term, "row_table", None)
+    if hasattr(term, "row_label"):           # an altimetry shot: its track and shot
+        return -1, -1, term.row_label(row)
     if getattr(term, "uses_points", False):
         # a reference DTM row: the point it observes (steep or changed terrain) is named
         j = int(term.point_index[row])

@@ -120,6 +120,8 @@ def final_status(ledger: Ledger) -> xr.Dataset:
         table = getattr(term_obj, "row_table", None)
         img_of = table()["image"] if table is not None else np.full(fac.size, -1)
         pt_of = np.asarray(term_obj.point_index, np.int64) if kind_t == "terrain" else np.full(fac.size, -1)
+        if pt_of.ndim == 2:                  # an altimetry shot's triangle: its nearest point (first) names it
+            pt_of = pt_of[:, 0]
         down = ledger.weights.term_downweighted(t)
         out = ledger.term_rows_out(t)
         for r in range(fac.size):
