@@ -54,6 +54,10 @@ def main(argv=None):
     ap.add_argument("--max-iterations", type=int, default=100)
     ap.add_argument("--precision", action="store_true")
     ap.add_argument("--no-datum-check", action="store_true")
+    ap.add_argument("--acceleration-memory", type=int, default=SolverOptions.acceleration_memory,
+                    help="Anderson acceleration memory (0: plain Levenberg-Marquardt)")
+    ap.add_argument("--min-mu-factor", type=float, default=SolverOptions.min_mu_factor,
+                    help="smallest factor by which an accepted step lowers the damping")
     ap.add_argument("--time-limit", type=float, default=0.0, help="accepted for harness compatibility (unused)")
     args = ap.parse_args(argv)
     phase_peak()
@@ -64,7 +68,8 @@ def main(argv=None):
     t0 = time.perf_counter()
     problem = bal_to_problem(data)
     opts = SolverOptions(ftol=args.ftol, max_iterations=args.max_iterations, backend=args.backend,
-                         check_datum=not args.no_datum_check)
+                         check_datum=not args.no_datum_check, acceleration_memory=args.acceleration_memory,
+                         min_mu_factor=args.min_mu_factor)
     peak_read = phase_peak()
     res = solve(problem, opts)
     t_solve = time.perf_counter() - t0
