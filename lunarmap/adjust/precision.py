@@ -673,6 +673,32 @@ def _regularize_undetermined_points(V: NDArray, active: NDArray, ratio: float = 
     return bad
 
 
+def _dense_spd_inverse(N: NDArray) -> NDArray:
+    """Inverse of a dense symmetric positive-definite matrix (overwritten), by LAPACK Cholesky.
+
+    Jacobi scaling first keeps the factorisation well conditioned (metres vs radians).
+
+    Raises
+    ------
+    DatumDefectError
+        The matrix is not positive definite.
+    """
+    d = 1.0 / np.sqrt(np.diag(N))
+    N *= d[:, None]
+    N *= d[None, :]
+    c, info = sla.lapack.dpotrf(N, lower=True, overwrite_a=True, clean=False)
+    if info != 0:
+        raise DatumDefectError(f"the normal matrix at the solution is not positive definite (LAPACK info {info})")
+    Q, info = sla.lapack.dpotri(c, lower=True, overwrite_c=True)
+    if info != 0:
+        raise DatumDefectError(f"inverting the normal matrix failed (LAPACK info {info})")
+    il = np.tril_indices_from(Q, -1)
+    Q[il[::-1]] = Q[il]  # mirror lower -> upper
+    Q *= d[:, None]
+    Q *= d[None, :]
+    return Q
+
+
 def _dense_precision(result, redundancy: bool, scale_by_sigma0: bool) -> Precision:
     """Reference implementation: dense LAPACK inverse of the whole reduced system."""
     from .normal import Terms, linearize, reduced_system
@@ -686,21 +712,7 @@ def _dense_precision(result, redundancy: bool, scale_by_sigma0: bool) -> Precisi
     S, _, Vinv, _ = reduced_system(lin, st, terms, 0.0, result.free_red)
     W = lin.W if lin.W is not None else np.einsum("nki,nkj->nij", lin.Ac, lin.Ap)
     F = np.matmul(W, Vinv[pb.obs.pt_idx])
-    # Jacobi scaling keeps the dense factorisation well conditioned (metres vs radians)
-    Sd = S.toarray()
-    d = 1.0 / np.sqrt(np.diag(Sd))
-    Sd *= d[:, None]
-    Sd *= d[None, :]
-    c, info = sla.lapack.dpotrf(Sd, lower=True, overwrite_a=True, clean=False)
-    if info != 0:
-        raise DatumDefectError(f"the normal matrix at the solution is not positive definite (LAPACK info {info})")
-    Qs, info = sla.lapack.dpotri(c, lower=True, overwrite_c=True)
-    if info != 0:
-        raise DatumDefectError(f"inverting the normal matrix failed (LAPACK info {info})")
-    il = np.tril_indices_from(Qs, -1)
-    Qs[il[::-1]] = Qs[il]  # mirror lower -> upper
-    Qs *= d[:, None]
-    Qs *= d[None, :]
+    Qs = _dense_spd_inverse(S.toarray())
     n_red = result.free_red.size
     Q = np.zeros((n_red, n_red))
     fi = np.nonzero(result.free_red)[0]
@@ -776,19 +788,7 @@ def _coupled_precision(result, redundancy: bool, scale_by_sigma0: bool) -> Preci
     dg = np.diag(Nd).copy()
     if np.any(dg <= 0) or not np.all(np.isfinite(dg)):
         raise DatumDefectError(f"{int(np.sum(~(dg > 0)))} unknown(s) have no weight in the normal equations")
-    d = 1.0 / np.sqrt(dg)
-    Nd *= d[:, None]
-    Nd *= d[None, :]
-    c, info = sla.lapack.dpotrf(Nd, lower=True, overwrite_a=True, clean=False)
-    if info != 0:
-        raise DatumDefectError(f"the normal matrix at the solution is not positive definite (LAPACK info {info})")
-    Qs, info = sla.lapack.dpotri(c, lower=True, overwrite_c=True)
-    if info != 0:
-        raise DatumDefectError(f"inverting the normal matrix failed (LAPACK info {info})")
-    il = np.tril_indices_from(Qs, -1)
-    Qs[il[::-1]] = Qs[il]
-    Qs *= d[:, None]
-    Qs *= d[None, :]
+    Qs = _dense_spd_inverse(Nd)
     if np.max(np.diag(Qs) * dg) > MAX_SCALED_VARIANCE:
         raise DatumDefectError("the normal matrix at the solution is numerically singular: the datum is not defined")
     s2 = result.sigma0 ** 2 if scale_by_sigma0 else 1.0

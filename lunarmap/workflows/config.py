@@ -397,21 +397,32 @@ def _qc_config(q: Mapping[str, Any], navigation: bool, largest_group: int, src: 
                     float(q["max_seconds"]) if "max_seconds" in q else None)
 
 
+def _bounded(t: Mapping[str, Any], key: str, where: str, unit: str, src: str, low: float = 0.0,
+             inclusive: bool = False) -> float:
+    """``t[key]`` as a finite float above ``low`` (or at it, ``inclusive``), else a ConfigError naming it."""
+    v = float(t[key])
+    if not ((v >= low if inclusive else v > low) and v < float("inf")):
+        raise ConfigError(f"{src}: {where}.{key} must be {'>=' if inclusive else '>'} {low:g} {unit}, got {t[key]!r}")
+    return v
+
+
+def _group_name(e: Mapping[str, Any], path: Path, where: str, taken: Sequence[Any], what: str, src: str) -> str:
+    """The observation group's name of a terrain table (default its file's stem), checked and unique."""
+    name = e.get("name", path.stem)
+    if not _NAME.match(name):
+        raise ConfigError(f"{src}: {where}.name {name!r} may hold only letters, digits, '_', '.', '-'")
+    if any(d.name == name for d in taken):
+        raise ConfigError(f"{src}: {where}.name {name!r} repeats (each {what} is its own observation group)")
+    return name
+
+
 def _jitter_config(t: Any, names: Sequence[str], src: str) -> JitterConfig:
     if not isinstance(t, dict):
         raise ConfigError(f"{src}: [adjust.jitter] must be a table")
     _check_table(t, _JITTER, "adjust.jitter", src)
-    knots = float(t["knot_lines"])
-    if not (knots >= 1.0 and knots < float("inf")):
-        raise ConfigError(f"{src}: adjust.jitter.knot_lines must be >= 1 line, got {t['knot_lines']!r}")
-    sigma = float(t["sigma"])
-    if not (sigma > 0 and sigma < float("inf")):
-        raise ConfigError(f"{src}: adjust.jitter.sigma must be > 0 radians, got {t['sigma']!r}")
-    zero = None
-    if "zero_sigma" in t:
-        zero = float(t["zero_sigma"])
-        if not (zero > 0 and zero < float("inf")):
-            raise ConfigError(f"{src}: adjust.jitter.zero_sigma must be > 0 radians, got {t['zero_sigma']!r}")
+    knots = _bounded(t, "knot_lines", "adjust.jitter", "line", src, low=1.0, inclusive=True)
+    sigma = _bounded(t, "sigma", "adjust.jitter", "radians", src)
+    zero = _bounded(t, "zero_sigma", "adjust.jitter", "radians", src) if "zero_sigma" in t else None
     images = None
     if "images" in t:
         images = tuple(t["images"])
@@ -436,19 +447,9 @@ def _terrain_config(t: Any, base: Path, src: str) -> tuple[TerrainDtmConfig, ...
             raise ConfigError(f"{src}: {where} must be a table")
         _check_table(e, _TERRAIN_DTM, where, src)
         path = _path(base, e["path"], f"{where}.path", src)
-        name = e.get("name", path.stem)
-        if not _NAME.match(name):
-            raise ConfigError(f"{src}: {where}.name {name!r} may hold only letters, digits, '_', '.', '-'")
-        if any(d.name == name for d in out):
-            raise ConfigError(f"{src}: {where}.name {name!r} repeats (each DTM is its own observation group)")
-        sigma = float(e["sigma"])
-        if not (sigma > 0 and sigma < float("inf")):
-            raise ConfigError(f"{src}: {where}.sigma must be > 0 metres, got {e['sigma']!r}")
-        baseline = None
-        if "slope_baseline" in e:
-            baseline = float(e["slope_baseline"])
-            if not (baseline > 0 and baseline < float("inf")):
-                raise ConfigError(f"{src}: {where}.slope_baseline must be > 0 metres, got {e['slope_baseline']!r}")
+        name = _group_name(e, path, where, out, "DTM", src)
+        sigma = _bounded(e, "sigma", where, "metres", src)
+        baseline = _bounded(e, "slope_baseline", where, "metres", src) if "slope_baseline" in e else None
         out.append(TerrainDtmConfig(name, path, sigma, baseline))
     return tuple(out)
 
@@ -461,21 +462,13 @@ def _altimetry_config(t: Any, base: Path, src: str) -> tuple[TerrainAltimetryCon
             raise ConfigError(f"{src}: {where} must be a table")
         _check_table(e, _TERRAIN_ALT, where, src)
         path = _path(base, e["path"], f"{where}.path", src)
-        name = e.get("name", path.stem)
-        if not _NAME.match(name):
-            raise ConfigError(f"{src}: {where}.name {name!r} may hold only letters, digits, '_', '.', '-'")
-        if any(d.name == name for d in out):
-            raise ConfigError(f"{src}: {where}.name {name!r} repeats (each altimeter is its own observation group)")
-        vals = {}
-        for key, zero_ok in (("sigma", False), ("interpolation_sigma", True), ("offset_sigma", False)):
-            if key not in e:
-                continue
-            v = float(e[key])
-            if not ((v >= 0 if zero_ok else v > 0) and v < float("inf")):
-                raise ConfigError(f"{src}: {where}.{key} must be {'>= 0' if zero_ok else '> 0'} metres, got {e[key]!r}")
-            vals[key] = v
-        out.append(TerrainAltimetryConfig(name, path, vals["sigma"], vals.get("interpolation_sigma", 0.0),
-                                          vals.get("offset_sigma"), bool(e.get("drift", False))))
+        name = _group_name(e, path, where, out, "altimeter", src)
+        out.append(TerrainAltimetryConfig(
+            name, path, _bounded(e, "sigma", where, "metres", src),
+            _bounded(e, "interpolation_sigma", where, "metres", src, inclusive=True) if "interpolation_sigma" in e
+            else 0.0,
+            _bounded(e, "offset_sigma", where, "metres", src) if "offset_sigma" in e else None,
+            bool(e.get("drift", False))))
     return tuple(out)
 
 
