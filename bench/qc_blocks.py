@@ -14,19 +14,27 @@ number of image observations (at least 4, at most one per point).
 The containers (``DlrSimulation``, ``Blunders``) are reused so that tests/qchelp.py's problem builder and
 scorer apply; the injection here is its own code.
 
+Every error's detectability on the clean block (its minimal detectable bias) is :func:`error_reliability`.
+
 Limitations: every camera of a block shares one interior (frame_block takes one); no line-scan blocks yet.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
+import sys
 
 import numpy as np
 
 from lunarmap.simulate.blocks import clementine_interior, frame_block
 from lunarmap.simulate.dlr import PAPER_AXES, PX_PER_MM, Blunders, DlrSimulation, _keep_points
 
-__all__ = ["random_block", "inject_mix"]
+__all__ = ["random_block", "inject_mix", "error_reliability", "DELTA0"]
+
+#: non-centrality a w-test with limit 4 detects with 80 % power (4 + z_0.80 = 4 + 0.84): an error whose expected
+#: |w| on the clean block is below it is below the observation's minimal detectable bias (MDB)
+DELTA0 = 4.84
 
 #: the paper's "blunders" sigmas: image (mm), position (m), attitude (deg), control (m)
 IMAGE_MM, POSITION_M, ATTITUDE_DEG, CONTROL_M = 0.02, 100.0, 0.01, 200.0
@@ -113,3 +121,56 @@ def inject_mix(sim: DlrSimulation, seed: int) -> DlrSimulation:
                             "control_xyz": ctl})
     return DlrSimulation(new, nav, sim.nav_sigma, sim.image_sigma, sim.control_sigma, sim.along_km,
                          sim.clean_xy, bl)
+
+
+def error_reliability(clean: DlrSimulation, bl: Blunders, delta0: float = DELTA0) -> list[dict]:
+    """Detectability of the injected errors ``bl`` (:func:`inject_mix`) from the clean block ``clean``'s own
+    reliability.
+
+    The clean block (no errors) is adjusted by least squares; each erroneous observation's redundancy number
+    ``r`` there gives the expected w-test of its error ``e`` (a-priori sigma ``s``): ``|e| sqrt(r) / s`` (the
+    largest over an image observation's two coordinates), and its minimal detectable bias
+    ``MDB = delta0 s / sqrt(r)`` (Baarda). An error with expected ``|w| < delta0`` is below its MDB: no test at
+    the limit 4 finds it with 80 % power, whatever the snooping does. Judged on the clean block, not on the
+    state a QC run leaves (whose removals can strip an image or point of the redundancy it was built with).
+
+    Returns
+    -------
+    list of dict
+        One per error, in :func:`score`'s order of counting (image errors, position, attitude, control):
+        ``kind``, ``index``, ``expected_w``, ``r``, ``mdb`` (pixels, metres, radians), ``error``, ``below_mdb``.
+    """
+    tests = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests")
+    if tests not in sys.path:       # tests/qchelp.py builds the problem the benchmark's QC runs on
+        sys.path.append(tests)
+    from qchelp import dlr_problem
+
+    from lunarmap.adjust import SolverOptions, solve
+
+    res = solve(dlr_problem(clean), SolverOptions(ftol=1e-8))
+    pr = res.precision()
+    out: list[dict] = []
+
+    def row(kind, index, e, s, r):
+        r = float(max(r, 0.0)) if np.isfinite(r) else 0.0
+        ew = float(abs(e) * np.sqrt(r) / s)
+        out.append({"kind": kind, "index": index, "error": float(e), "r": r, "expected_w": ew,
+                    "mdb": float(delta0 * s / np.sqrt(r)) if r > 0 else float("inf"), "below_mdb": ew < delta0})
+
+    for i, e in zip(bl.image_obs, bl.image_px):
+        rr = pr.redundancy_numbers[i]
+        k = int(np.argmax(np.abs(e) * np.sqrt(np.clip(rr, 0, None))))
+        row("image", int(i), float(e[k]), float(clean.image_sigma[i]), float(rr[k]))
+    nav = res.problem.terms[0].row_table()
+    for kind, b, v in (("position", bl.position, bl.position_value), ("attitude", bl.attitude, bl.attitude_value)):
+        if b is None:
+            continue
+        j, k = b
+        rows = np.flatnonzero((nav["image"] == j) & (nav["param"] == k) & (nav["kind"] == 0))
+        r = float(np.asarray(pr.term_redundancy[0])[rows[0]]) if rows.size else 0.0
+        row(kind, (int(j), int(k)), v, float(clean.nav_sigma[j, k]), r)
+    if bl.control is not None:
+        c, a = bl.control
+        row("control", (int(c), int(a)), bl.control_value, float(clean.control_sigma),
+            float(pr.control_redundancy[c, a]))
+    return out
