@@ -197,8 +197,16 @@ def _has_task(arg: Any) -> bool:
 
 
 def _call(fn: Callable[..., Any], *args: Any) -> Any:
-    """``fn(*args)`` with the :class:`_Value` arguments unwrapped (the graph's task function)."""
-    return fn(*(a.value if isinstance(a, _Value) else a for a in args))
+    """``fn(*args)`` with the :class:`_Value` arguments unwrapped (the graph's task function).
+
+    A step runs with dask's synchronous scheduler as the default: on a distributed worker xarray otherwise
+    finds the worker's client and takes a cluster-wide ``distributed.Lock`` (a scheduler round trip) for every
+    netCDF file it writes, which serialises the workers' writes. Measured on 48 RFM steps, 2 workers: 0.181 s
+    per step with the lock, 0.089 s without (0.084 s serially); a step never computes a dask graph of its own
+    on the cluster, so nothing else changes.
+    """
+    with dask.config.set(scheduler="sync"):
+        return fn(*(a.value if isinstance(a, _Value) else a for a in args))
 
 
 def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None,
