@@ -107,11 +107,13 @@ class Outputs:
             fresh = len(was) == 2 and was[0] == str(src) and dst.exists() and file_digest(dst) == was[1]
         except OSError:
             fresh = False
-        if not fresh:
-            from ..rpc import write_rpc_txt
+        if fresh:
+            done.rows[rel] = "\n".join(was)        # its digest was just checked: not hashed a second time
+            return dst
+        from ..rpc import write_rpc_txt
 
-            dst.parent.mkdir(parents=True, exist_ok=True)
-            write_rpc_txt(_stored_rfm(src), dst)
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        write_rpc_txt(_stored_rfm(src), dst)
         # a derived file's own digest (it never equals the entry's): a damaged one is written again
         done.rows[rel] = f"{src}\n{file_digest(dst)}"
         return dst
@@ -152,13 +154,10 @@ def image_files(name: str, rpc: bool) -> list[str]:
 
 def export_image(outputs: Outputs, records: Sequence[Any]) -> Exported:
     """An image's ISD and navigation RFM (netCDF and ``_RPC.TXT``) in ``outputs``, from its steps' records."""
-    done = Exported()
+    done = export_rpcs(outputs, [d for d in records if d.step == "rpc"], "rpc")
     for d in records:
         if d.step == "isd":
             outputs.copy(d.path, f"isd/{d.item}.json", done)
-        elif d.step == "rpc":
-            outputs.copy(d.path, f"rpc/{d.item}.nc", done)
-            outputs.rpc_text(d.path, f"rpc/{d.item}_RPC.TXT", done)
     return done
 
 
