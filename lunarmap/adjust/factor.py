@@ -26,6 +26,7 @@ import scipy.sparse.linalg as spla
 
 from ..blas import single_threaded_blas
 from ..errors import DatumDefectError
+from .timing import phase
 
 __all__ = ["factorize", "available_backends", "Factorizer"]
 
@@ -82,8 +83,9 @@ class _CvxoptCholmod:
             key = (n, L.nnz, L.indptr.tobytes(), L.indices.tobytes())
         values = matrix(np.ascontiguousarray(data, dtype=np.float64))
         if key != self._key:
-            A = spmatrix(values, matrix(rows), matrix(cols), (n, n))
-            self._symbolic = self._cholmod.symbolic(A, uplo="L")
+            with phase("factor_symbolic"):
+                A = spmatrix(values, matrix(rows), matrix(cols), (n, n))
+                self._symbolic = self._cholmod.symbolic(A, uplo="L")
             self._key, self._A = key, A
         else:
             # same pattern, entries in the same (column, row) order: swap the values only
@@ -91,15 +93,17 @@ class _CvxoptCholmod:
             A.V = values
         F = self._symbolic
         try:
-            self._cholmod.numeric(A, F)
+            with phase("factor_numeric"):
+                self._cholmod.numeric(A, F)
         except ArithmeticError as exc:  # cvxopt raises ArithmeticError for a non-PD matrix
             raise np.linalg.LinAlgError(str(exc)) from exc
         cholmod = self._cholmod
 
         def solve(b):
-            x = matrix(np.array(b, dtype=np.float64, order="F").reshape(n, -1))
-            cholmod.solve(F, x)
-            return np.array(x).reshape(np.shape(b))
+            with phase("triangular_solves"):
+                x = matrix(np.array(b, dtype=np.float64, order="F").reshape(n, -1))
+                cholmod.solve(F, x)
+                return np.array(x).reshape(np.shape(b))
 
         return solve
 
@@ -186,7 +190,11 @@ class Factorizer:
         else:
             fn = {"cholespy": _cholespy, "splu": _splu, "dense": _dense}[backend]
         try:
-            solve = fn(S)
+            if fn is self._cvx:
+                solve = fn(S)       # times its symbolic / numeric phases itself
+            else:
+                with phase("factorize"):
+                    solve = fn(S)
         except (np.linalg.LinAlgError, RuntimeError, ValueError, ArithmeticError) as exc:
             raise DatumDefectError(
                 f"the reduced normal equations ({S.shape[0]} unknowns) are singular or not positive definite "

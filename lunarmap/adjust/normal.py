@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 
 from .problem import BundleProblem
 from .schur import SchurStructure, inv_sym3, normal_blocks, whiten
+from .timing import phase
 
 __all__ = ["AdjustmentState", "Linearization", "Terms", "linearize", "reduced_system", "back_substitute",
            "evaluate_cost", "image_residuals", "prior_terms", "split_extra", "term_linearize", "term_residuals",
@@ -171,16 +172,19 @@ def linearize(problem: BundleProblem, state: AdjustmentState, structure: SchurSt
               fixed_pt: NDArray) -> Linearization:
     """Residuals, Jacobians and normal-equation blocks at ``state`` (all observations at once)."""
     o = problem.obs
-    x, Jc, Jp = _model_linearize(problem, state)
-    ws = np.sqrt(state.obs_weight)[:, None] / o.sigma        # (n, 2) sqrt of weights
-    # whitened in place (fresh, writable, contiguous float arrays from the model; copied otherwise)
-    Ac = np.require(Jc, np.float64, ["C", "W"])
-    Ap = np.require(Jp, np.float64, ["C", "W"])
-    assert problem.cam_param_free is not None      # set by BundleProblem.__post_init__
-    r, cost = whiten(np.ascontiguousarray(x, np.float64), o.xy, ws, Ac, Ap, problem.cam_param_free, fixed_pt,
-                     structure.cam_idx, structure.pt_idx)
-    U, V, W, gc, gp = normal_blocks(Ac, Ap, r, structure.cam_idx, structure.pt_idx, structure.n_cam,
-                                    structure.n_pt, want_W=not structure.compiled)
+    with phase("jacobians"):
+        x, Jc, Jp = _model_linearize(problem, state)
+    with phase("whiten"):
+        ws = np.sqrt(state.obs_weight)[:, None] / o.sigma        # (n, 2) sqrt of weights
+        # whitened in place (fresh, writable, contiguous float arrays from the model; copied otherwise)
+        Ac = np.require(Jc, np.float64, ["C", "W"])
+        Ap = np.require(Jp, np.float64, ["C", "W"])
+        assert problem.cam_param_free is not None      # set by BundleProblem.__post_init__
+        r, cost = whiten(np.ascontiguousarray(x, np.float64), o.xy, ws, Ac, Ap, problem.cam_param_free, fixed_pt,
+                         structure.cam_idx, structure.pt_idx)
+    with phase("normal_blocks"):
+        U, V, W, gc, gp = normal_blocks(Ac, Ap, r, structure.cam_idx, structure.pt_idx, structure.n_cam,
+                                        structure.n_pt, want_W=not structure.compiled)
     gc = gc.ravel()
     pt = prior_terms(problem, state.points)
     if pt is not None:
@@ -218,7 +222,8 @@ def reduced_system(lin: Linearization, structure: SchurStructure, terms: Terms, 
     """
     p = structure.p
     if structure.compiled:
-        blocks, Fg, Vinv = structure.schur(lin.U, lin.V, lin.Ac, lin.Ap, lin.gp, mu)
+        with phase("schur_complement"):
+            blocks, Fg, Vinv = structure.schur(lin.U, lin.V, lin.Ac, lin.Ap, lin.gp, mu)
         rhs_c = -lin.gc + Fg.ravel()
     else:
         assert lin.W is not None        # formed on the NumPy path
@@ -245,7 +250,8 @@ def reduced_system(lin: Linearization, structure: SchurStructure, terms: Terms, 
             db = blocks[structure.diag_block]
             db[:, np.arange(p), np.arange(p)] += mu * D.reshape(-1, p)
             blocks[structure.diag_block] = db
-        S = structure.assemble(blocks)
+        with phase("assemble_S"):
+            S = structure.assemble(blocks)
     else:
         S = structure.assemble(blocks)
         if terms.n_extra:

@@ -39,6 +39,10 @@ class AdjustmentResult:
     setup_seconds: float
     options: Any
     free_red: NDArray
+    #: how the reduced camera system was solved ("direct" or "pcg", :class:`~lunarmap.adjust.SolverOptions`)
+    linear_solver: str = "direct"
+    #: CG iterations of every step (empty for the direct solver)
+    linear_iterations: list = field(default_factory=list)
     _precision: Any = field(default=None, repr=False)
 
     # --- unknowns --------------------------------------------------------

@@ -51,7 +51,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from ..blas import single_threaded_blas
-from ..errors import AdjustmentDivergedError, DatumDefectError
+from ..errors import AdjustmentDivergedError, AdjustmentInputError, DatumDefectError
 from .factor import Factorizer
 from .normal import (
     AdjustmentState,
@@ -63,8 +63,10 @@ from .normal import (
     linearize,
     reduced_system,
 )
+from .pcg import block_jacobi, pcg
 from .problem import BundleProblem
 from .schur import SchurStructure
+from .timing import phase
 
 _log = logging.getLogger(__name__)
 
@@ -91,7 +93,14 @@ class SolverOptions:
     docstring, item 5);
     ``backend``: sparse factorisation (:func:`lunarmap.adjust.factor.factorize`);
     ``compiled``: use the numba kernels for the normal blocks and the Schur complement when numba is
-    installed (``False`` forces the numpy path, for testing).
+    installed (``False`` forces the numpy path, for testing);
+    ``linear_solver``: how the damped reduced camera system is solved each iteration: ``"direct"`` (sparse
+    Cholesky, ``backend``), ``"pcg"`` (iterative Schur, :mod:`.pcg`: conjugate gradients with the
+    per-image block-Jacobi preconditioner to the relative residual ``pcg_tolerance``, at most
+    ``pcg_max_iterations`` CG iterations; the LM acceptance uses the model decrease of the inexact step) or
+    ``"auto"`` (``"pcg"`` from ``pcg_min_images`` images on, else ``"direct"``). Blocks whose terms
+    couple points (laser altimetry) are always solved directly. The posterior precision does not depend
+    on this choice (:mod:`.precision` factorises the undamped system itself).
     """
 
     ftol: float = 1e-6
@@ -111,6 +120,13 @@ class SolverOptions:
     #: Anderson acceleration of the accepted steps: number of previous steps combined (0: plain LM); see
     #: :func:`_anderson` for the rule and why
     acceleration_memory: int = 5
+    #: "auto" | "direct" | "pcg" (see the class docstring)
+    linear_solver: str = "auto"
+    #: relative residual (preconditioned norm) at which CG stops: the inexact-Newton forcing term
+    pcg_tolerance: float = 1e-3
+    pcg_max_iterations: int = 1000
+    #: "auto" takes "pcg" from this many images on (chosen from docs/SCALING.md's measurement)
+    pcg_min_images: int = 10**9
 
 
 _last_progress = [0.0]     # time of the last progress line (shared by consecutive solves: QC rounds)
@@ -181,6 +197,8 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
     from .result import AdjustmentResult
 
     opt = options or SolverOptions()
+    if opt.linear_solver not in ("auto", "direct", "pcg"):
+        raise AdjustmentInputError(f"linear_solver must be 'auto', 'direct' or 'pcg', not {opt.linear_solver!r}")
     t_start = time.perf_counter()
     o = problem.obs
     p = problem.model.n_params
@@ -195,6 +213,14 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
                               [np.asarray(t.extra_free(), bool) for t in problem.terms])
     state = AdjustmentState(problem.cam_params.copy(), problem.points.copy(), extra0.copy(),
                             np.asarray(problem.obs_weight, float).copy())
+    use_pcg = not terms.coupled and (opt.linear_solver == "pcg" or (
+        opt.linear_solver == "auto" and problem.n_images >= opt.pcg_min_images))
+    if use_pcg:
+        # preconditioner blocks: one per image (its free parameters), one per free extra unknown
+        grp = np.concatenate([np.repeat(np.arange(problem.n_images), p),
+                              problem.n_images + np.arange(terms.n_extra)])[free_red]
+        pcg_groups = np.unique(grp, return_inverse=True)[1].astype(np.int64)
+    linear_iterations: list[int] = []
     t_setup = time.perf_counter() - t_start
 
     # datum check on the undamped system: a singular S means an undefined datum
@@ -202,11 +228,12 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
     if not np.isfinite(lin.cost):
         raise AdjustmentDivergedError("the initial cost is not finite (a point behind a camera or at infinity?)")
     if opt.check_datum:
-        if terms.coupled:
-            S0 = full_system(lin, problem, terms, 0.0, free_red, fixed_pt)[0]
-        else:
-            S0, _, _, _ = reduced_system(lin, structure, terms, 0.0, free_red)
-        _check_datum(S0, opt.backend)
+        with phase("datum_check"):
+            if terms.coupled:
+                S0 = full_system(lin, problem, terms, 0.0, free_red, fixed_pt)[0]
+            else:
+                S0, _, _, _ = reduced_system(lin, structure, terms, 0.0, free_red)
+            _check_datum(S0, opt.backend)
 
     cost0 = lin.cost
     state.cost = cost0
@@ -227,7 +254,10 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
         else:
             S, rhs, Vinv, D = reduced_system(lin, structure, terms, mu, free_red)
         try:
-            solve_S = factorize(S)
+            if use_pcg:
+                solve_S = _pcg_solver(S, pcg_groups, opt, linear_iterations)
+            else:
+                solve_S = factorize(S)
         except DatumDefectError:
             # rounding made the damped system indefinite (very weak points): damp more, as for a rejected step
             if mu > 1e32:
@@ -241,14 +271,29 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
             dp = dall[free_red.size:].reshape(-1, 3)
         else:
             dred = np.zeros(free_red.size)
-            dred[free_red] = solve_S(rhs)
-            dp = back_substitute(lin, structure, Vinv, dred, terms, problem)
+            try:
+                dfree = solve_S(rhs)
+            except DatumDefectError:
+                # CG met non-positive curvature (rounding on a nearly singular system): damp more
+                if mu > 1e32:
+                    raise
+                mu, nu = max(mu, 1e-12) * nu, 2.0 * nu
+                continue
+            dred[free_red] = dfree
+            with phase("back_substitution"):
+                dp = back_substitute(lin, structure, Vinv, dred, terms, problem)
         dp[fixed_pt] = 0.0
         dc = dred[:terms.n_cam_red].reshape(-1, p)
         new = AdjustmentState(state.cam_params + dc, state.points + dp, state.extra + dred[terms.n_cam_red:],
                               state.obs_weight, state.iteration + 1)
-        new_cost = evaluate_cost(problem, new)
+        with phase("cost"):
+            new_cost = evaluate_cost(problem, new)
         pred = _model_decrease(lin, mu, D, dred, dp)
+        if use_pcg and not terms.coupled:
+            # the inexact step solves (N + mu D) d = -g + [e; 0] with e = S dc - rhs: its model decrease is
+            # the exact step's formula minus dc^T e / 2 (module docstring of .pcg)
+            with phase("pcg"):
+                pred -= 0.5 * float(dfree @ (S @ dfree - rhs))
         actual = state.cost - new_cost
         step_norm = np.sqrt(np.sum(dred ** 2) + np.sum(dp ** 2))
         x_norm = np.sqrt(np.sum(state.cam_params ** 2) + np.sum(state.points ** 2) + np.sum(state.extra ** 2))
@@ -269,25 +314,27 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
             nu = 2.0
             old_cost = state.cost
             if opt.acceleration_memory > 0:
-                x_k = np.concatenate([state.cam_params.ravel(), state.points.ravel(), state.extra])
-                d_k = np.concatenate([dc.ravel(), dp.ravel(), dred[terms.n_cam_red:]])
-                hist_x.append(x_k)
-                hist_d.append(d_k)
-                del hist_x[:-(opt.acceleration_memory + 1)], hist_d[:-(opt.acceleration_memory + 1)]
-                w = np.sqrt(np.concatenate([D[:terms.n_cam_red], np.clip(
-                    np.diagonal(lin.V, axis1=1, axis2=2), 1e-6, 1e32).ravel(), D[terms.n_cam_red:]]))
-                xa = _anderson(hist_x, hist_d, w)
-                if xa is not None:
-                    acc = AdjustmentState(xa[:n_cp].reshape(state.cam_params.shape),
-                                          xa[n_cp:n_cp + n_pts].reshape(state.points.shape), xa[n_cp + n_pts:],
-                                          state.obs_weight, state.iteration + 1)
-                    acc_cost = evaluate_cost(problem, acc)
-                    # safeguard: the accelerated point only where it is better than the LM step itself
-                    if np.isfinite(acc_cost) and acc_cost < new_cost:
-                        new, new_cost, actual = acc, acc_cost, state.cost - acc_cost
-                        n_accel += 1
-                    _log.log(logging.INFO if opt.verbose else logging.DEBUG,
-                             "     accelerated cost %.6e (%s)", acc_cost, "taken" if acc is new else "not taken")
+                with phase("acceleration"):
+                    x_k = np.concatenate([state.cam_params.ravel(), state.points.ravel(), state.extra])
+                    d_k = np.concatenate([dc.ravel(), dp.ravel(), dred[terms.n_cam_red:]])
+                    hist_x.append(x_k)
+                    hist_d.append(d_k)
+                    del hist_x[:-(opt.acceleration_memory + 1)], hist_d[:-(opt.acceleration_memory + 1)]
+                    w = np.sqrt(np.concatenate([D[:terms.n_cam_red], np.clip(
+                        np.diagonal(lin.V, axis1=1, axis2=2), 1e-6, 1e32).ravel(), D[terms.n_cam_red:]]))
+                    xa = _anderson(hist_x, hist_d, w)
+                    if xa is not None:
+                        acc = AdjustmentState(xa[:n_cp].reshape(state.cam_params.shape),
+                                              xa[n_cp:n_cp + n_pts].reshape(state.points.shape), xa[n_cp + n_pts:],
+                                              state.obs_weight, state.iteration + 1)
+                        with phase("cost"):
+                            acc_cost = evaluate_cost(problem, acc)
+                        # safeguard: the accelerated point only where it is better than the LM step itself
+                        if np.isfinite(acc_cost) and acc_cost < new_cost:
+                            new, new_cost, actual = acc, acc_cost, state.cost - acc_cost
+                            n_accel += 1
+                        _log.log(logging.INFO if opt.verbose else logging.DEBUG,
+                                 "     accelerated cost %.6e (%s)", acc_cost, "taken" if acc is new else "not taken")
             state = new
             state.cost = new_cost
             n_accept += 1
@@ -325,7 +372,33 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None,
     return AdjustmentResult(problem=problem, state=state, structure=structure, cost_initial=cost0,
                             iterations=n_iter, accepted=n_accept, converged=converged, message=message,
                             trace=trace, solve_seconds=t_solve, setup_seconds=t_setup, options=opt,
-                            free_red=free_red)
+                            free_red=free_red, linear_solver="pcg" if use_pcg else "direct",
+                            linear_iterations=linear_iterations)
+
+
+def _pcg_solver(S: sp.csr_matrix, groups: NDArray, opt: SolverOptions,
+                counts: list[int]) -> Callable[[NDArray], NDArray]:
+    """``solve(b)`` by block-Jacobi PCG on ``S`` (:mod:`.pcg`); appends the CG iterations of each solve to ``counts``.
+
+    Raises DatumDefectError (as the direct factorisation does) when a preconditioner block or the CG
+    curvature shows ``S`` not positive definite, so the caller damps more.
+    """
+    try:
+        with phase("preconditioner"):
+            M = block_jacobi(S, groups)
+    except np.linalg.LinAlgError as exc:
+        raise DatumDefectError(f"a diagonal block of the reduced system is not positive definite ({exc})") from exc
+
+    def solve_pcg(b: NDArray) -> NDArray:
+        try:
+            with phase("pcg"):
+                x, k, _ = pcg(S, b, M, opt.pcg_tolerance, opt.pcg_max_iterations)
+        except np.linalg.LinAlgError as exc:
+            raise DatumDefectError(f"the reduced system is not positive definite ({exc})") from exc
+        counts.append(k)
+        return x
+
+    return solve_pcg
 
 
 def _check_datum(S0: sp.csr_matrix, backend: str) -> None:
