@@ -111,8 +111,9 @@ def test_pcg_step_and_solution_equal_the_direct_ones(weak):
     cd = solve(weak, full).cost
     rp = solve(weak, SolverOptions(linear_solver="pcg", ftol=1e-10))
     assert rp.converged and rp.cost == pytest.approx(cd, rel=1e-8)
-    # "auto" below its threshold is the direct solver
+    # "auto": direct by default, PCG from its image-count threshold on
     assert solve(weak, SolverOptions(max_iterations=1)).linear_solver == "direct"
+    assert solve(weak, SolverOptions(max_iterations=1, pcg_min_images=weak.n_images)).linear_solver == "pcg"
 
 
 def test_unknown_linear_solver_is_rejected(weak):

@@ -59,10 +59,17 @@ def block_jacobi(S: sp.csr_matrix, groups: NDArray[np.int64]) -> Callable[[NDArr
     Linv = np.linalg.solve(L, eye)
     Minv = np.einsum("gki,gkj->gij", Linv, Linv)     # B^-1 = L^-T L^-1
 
+    if n == n_groups * size:
+        # every block full (no fixed image parameters): the vector is the blocks one after another
+        def apply_full(r: NDArray) -> NDArray:
+            return np.matmul(Minv, r.reshape(n_groups, size, 1)).reshape(n)
+
+        return apply_full
+
     def apply(r: NDArray) -> NDArray:
         x = np.zeros((n_groups, size))
         x[groups, pos] = r
-        return np.einsum("gij,gj->gi", Minv, x)[groups, pos]
+        return np.matmul(Minv, x[:, :, None])[:, :, 0][groups, pos]
 
     return apply
 
