@@ -119,3 +119,32 @@ def test_pcg_step_and_solution_equal_the_direct_ones(weak):
 def test_unknown_linear_solver_is_rejected(weak):
     with pytest.raises(AdjustmentInputError, match="linear_solver"):
         solve(weak, SolverOptions(linear_solver="cg"))
+
+
+def test_phase_timer_counts_each_phase_of_the_iteration(weak, monkeypatch):
+    import itertools
+    import types
+
+    from lunarmap.adjust import timing
+    from lunarmap.adjust.timing import PhaseTimer, phase
+
+    opts = SolverOptions(linear_solver="direct", acceleration_memory=0, max_iterations=4, check_datum=False)
+    with PhaseTimer() as t:
+        res = solve(weak, opts)
+    # one linearisation before the loop and one after every accepted step but a converged last one; one
+    # cost evaluation and one back-substitution per step
+    assert t.calls["jacobians"] in (res.accepted, res.accepted + 1)
+    assert t.calls["cost"] == res.iterations == t.calls["back_substitution"]
+    # no active timer: nothing is recorded
+    solve(weak, opts)
+    assert t.calls["cost"] == res.iterations
+    # nested phases are charged exclusively: a clock that ticks 1 s per reading gives the inner phase 1 s
+    # (its two readings) and the outer one 3 - 1 = 2 s
+    cpu, wall = itertools.count(), itertools.count()
+    monkeypatch.setattr(timing, "time", types.SimpleNamespace(process_time=lambda: float(next(cpu)),
+                                                              perf_counter=lambda: float(next(wall))))
+    with PhaseTimer() as t2:
+        with phase("outer"):
+            with phase("inner"):
+                pass
+    assert t2.cpu == {"outer": 2.0, "inner": 1.0} and t2.wall == {"outer": 2.0, "inner": 1.0}
