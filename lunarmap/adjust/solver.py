@@ -129,8 +129,9 @@ class SolverOptions:
     pcg_tolerance: float = 0.1
     pcg_max_iterations: int = 1000
     #: "auto" takes "pcg" from this many images on; None: "auto" is always "direct". Measured (docs/SCALING.md,
-    #: "Where an iteration's time goes"): on the generator's strip blocks up to 10,000 images PCG costs 1.4-2.3x
-    #: the direct solver's CPU per iteration, so no threshold is set
+    #: "Where an LM iteration's time goes"): at the default tolerance PCG ties the direct solver on a
+    #: 4,000-image strip block (0.95-1.03x its CPU per solve) and larger blocks are not measured to
+    #: convergence yet, so no threshold is set
     pcg_min_images: int | None = None
 
 
