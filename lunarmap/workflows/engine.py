@@ -778,11 +778,12 @@ def _run_locked(cfg: RunConfig, scheduler: Any, workers: int, report: bool | Non
             return scheduler
 
         if cfg.altimetry:
-            from ..io.altimetry import read_altimetry
+            from .steps import altimetry_table
 
-            # a bad shot table (missing column, NaN, a track of one shot) is named before any work
+            # a bad shot table (missing column, NaN, a track of one shot) is named before any work; read into
+            # the process's cache, where a serial run's adjust step finds it
             for a in cfg.altimetry:
-                read_altimetry(a.path)
+                altimetry_table(a.path)
         done = _execute(first, scheduler_for(first), progress)
         if cfg.terrain:
             from .checks import check_terrain_coverage

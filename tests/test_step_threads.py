@@ -1,0 +1,98 @@
+"""The run steps' decorator (``lunarmap.workflows.steps._step``): thread policy, reuse without limits, memory
+records; ``lunarmap.blas.blas_threads`` under ``single_threaded_blas``; the adjustment's per-image threads give
+the serial results."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from blockhelp import linescan_case
+
+from lunarmap import blas
+from lunarmap.adjust import SolverOptions, solve
+from lunarmap.adjust.sensors import _IMAGE_THREADS, image_threads
+from lunarmap.workflows import steps
+from lunarmap.workflows.steps import ALL, Done, _cores, _step
+from lunarmap.workflows.store import Store
+
+
+def _blas_counts() -> list[int]:
+    api = blas._find_api()
+    return [int(get()) for get, _ in api]
+
+
+def _seen(store: Store, key: str, seen: list) -> Done:
+    # what the body of a step sees: BLAS threads, image threads; computes when its output is missing
+    seen.append((_blas_counts(), _IMAGE_THREADS.get()))
+    if store.has("demo", key, "txt"):
+        return Done("demo", key, "", str(store.path("demo", key, "txt")), False)
+    path = store.write("demo", key, "txt", lambda tmp: tmp.write_text("x"))
+    return Done("demo", key, "", str(path), True, 0.0)
+
+
+@pytest.mark.parametrize("threads", [1, ALL])
+def test_computed_step_runs_under_its_policy_and_records_peak_memory(tmp_path, threads):
+    step = _step("demo", "txt", threads=threads)(_seen)
+    seen: list = []
+    out = step(Store(tmp_path), "k", seen)
+    assert out.computed and out.peak_mb > 0.0
+    counts, images = seen[0]
+    n = 1 if threads == 1 else _cores()
+    assert images == n
+    assert all(c == n for c in counts)       # every OpenBLAS of the process (none found: nothing to check)
+
+
+def test_reused_step_returns_its_record_without_limits(tmp_path):
+    api = blas._find_api()
+    store = Store(tmp_path)
+    step = _step("demo", "txt")(_seen)
+    step(store, "k", [])                     # computed: stored now
+    seen: list = []
+    before = [int(get()) for get, _ in api]
+    with blas.blas_threads(2):               # a limit the reused step must not touch
+        out = step(store, "k", seen)
+        want = _blas_counts()
+    assert not out.computed and out.peak_mb == 0.0
+    assert seen[0][0] == want and seen[0][1] == 1
+    assert [int(get()) for get, _ in api] == before
+
+
+def test_single_threaded_blas_wins_inside_blas_threads():
+    api = blas._find_api()
+    if not api:
+        pytest.skip("no OpenBLAS found in this process")
+    before = _blas_counts()
+    with blas.blas_threads(2):
+        assert _blas_counts() == [2] * len(api)
+        with blas.single_threaded_blas():
+            assert _blas_counts() == [1] * len(api)
+        assert _blas_counts() == [2] * len(api)
+    with blas.single_threaded_blas():
+        with blas.blas_threads(2):       # held single-threaded: unchanged
+            assert _blas_counts() == [1] * len(api)
+        assert _blas_counts() == [1] * len(api)
+    assert _blas_counts() == before
+
+
+def test_only_the_adjust_step_takes_every_core():
+    # the adjustment is a barrier of the run's graph; the kernels run beside the adjusted RFMs' tasks
+    assert steps.adjust_step.threads == ALL
+    assert all(f.threads == 1 for f in (steps.kernels_step, steps.match_step, steps.detect_step, steps.isd_step,
+                                         steps.rpc_step, steps.pyramid_step, steps.tiepoints_step))
+
+
+def test_image_threads_give_the_serial_adjustment():
+    # a fresh block per thread count: the line-scan time search keeps a warm start from call to call, so
+    # both runs see the same history; the 1-thread run is the image-by-image loop
+    results = []
+    for n in (1, 2):
+        case = linescan_case(seed=0)
+        with image_threads(n):
+            res = solve(case.problem, SolverOptions(ftol=1e-10))
+        assert res.converged
+        results.append(res)
+    a, b = results
+    assert a.iterations == b.iterations
+    for x, y in ((a.cam_params, b.cam_params), (a.points, b.points)):
+        scale = np.maximum(np.abs(x), 1.0)
+        assert np.max(np.abs(x - y) / scale) <= 1e-9
