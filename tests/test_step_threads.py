@@ -96,3 +96,12 @@ def test_image_threads_give_the_serial_adjustment():
     for x, y in ((a.cam_params, b.cam_params), (a.points, b.points)):
         scale = np.maximum(np.abs(x), 1.0)
         assert np.max(np.abs(x - y) / scale) <= 1e-9
+
+
+def test_a_serial_run_limits_the_barrier_step_to_one_thread(tmp_path):
+    # engine._compute runs the sync scheduler under barrier_threads(1): a serial run is the one-core baseline
+    step = _step("demo", "txt", threads=ALL)(_seen)
+    seen: list = []
+    with steps.barrier_threads(1):
+        step(Store(tmp_path), "k", seen)
+    assert seen[0][1] == 1 and all(c == 1 for c in seen[0][0])

@@ -10,6 +10,7 @@ the same result whether its inputs were computed in this run, in an earlier one,
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import functools
 import json
 import logging
@@ -71,9 +72,30 @@ class Done:
 ALL = "all"
 
 
+# the threads of an ALL step on this thread (None: every core of the process); a serial run sets 1: it is
+# the one-core baseline its parallel runs are measured against (engine._compute)
+_BARRIER_THREADS: contextvars.ContextVar[int | None] = contextvars.ContextVar("lunarmap_barrier_threads",
+                                                                              default=None)
+
+
+@contextlib.contextmanager
+def barrier_threads(n: int | None) -> Iterator[None]:
+    """Context in which a step of ``threads=ALL`` (the adjustment) called from this thread uses ``n`` threads
+    (``None``: every core of the process)."""
+    token = _BARRIER_THREADS.set(n)
+    try:
+        yield
+    finally:
+        _BARRIER_THREADS.reset(token)
+
+
 def _cores() -> int:
-    """The cores this process may run on."""
+    """The cores this process may run on (or what :func:`barrier_threads` allows)."""
     import os
+
+    limit = _BARRIER_THREADS.get()
+    if limit is not None:
+        return max(1, int(limit))
 
     try:
         return max(1, len(os.sched_getaffinity(0)))
