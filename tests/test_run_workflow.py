@@ -470,10 +470,11 @@ def test_graph_stays_small_and_a_rerun_starts_no_cluster(example, serial, monkey
     assert not graph.computes()
     # the adjustment is a barrier: every other task of the block's graph comes before or after it, so it runs
     # alone and may take every core of its worker (workflows.steps._step(threads=ALL))
-    from dask.base import collections_to_dsk
     from dask.core import get_dependencies
 
-    dsk = dict(collections_to_dsk(list(graph.tasks.values()), optimize_graph=False))
+    dsk: dict = {}
+    for task in graph.tasks.values():
+        dsk.update(dict(task.__dask_graph__()))
     deps = {k: set(get_dependencies(dsk, k)) & set(graph.tasks) for k in graph.tasks}
 
     def before(k: str) -> set:

@@ -39,7 +39,14 @@ def test_computed_step_runs_under_its_policy_and_records_peak_memory(tmp_path, t
     counts, images = seen[0]
     n = 1 if threads == 1 else _cores()
     assert images == n
-    assert all(c == n for c in counts)       # every OpenBLAS of the process (none found: nothing to check)
+    assert all(c == 1 for c in counts)       # BLAS keeps one thread (none found: nothing to check)
+
+
+def test_a_step_may_ask_for_blas_threads(tmp_path):
+    step = _step("demo", "txt", threads=2, blas=True)(_seen)
+    seen: list = []
+    step(Store(tmp_path), "k", seen)
+    assert seen[0][1] == 2 and all(c == 2 for c in seen[0][0])
 
 
 def test_reused_step_returns_its_record_without_limits(tmp_path):

@@ -104,16 +104,19 @@ def _cores() -> int:
 
 
 @contextlib.contextmanager
-def _threads(threads: int | str) -> Iterator[int]:
+def _threads(threads: int | str, blas: bool = False) -> Iterator[int]:
     """The thread policy of a computing step; yields the threads it may use.
 
     One thread (BLAS and numba) by default: steps run side by side, one per dask worker thread, and a
     result must not depend on where it ran. :data:`ALL`: the step runs alone (a barrier of the graph: every
-    other task waits for it or is done), so it takes every core of its process for BLAS, numba and the
-    per-image work of the adjustment (:func:`lunarmap.adjust.sensors.image_threads`), whatever its dask
-    worker's ``nthreads``: on a ``LocalCluster`` of single-threaded workers the others' cores idle meanwhile.
-    Each of those splits its work independently of the thread count (no reduction is reordered), so the
-    results are identical.
+    other task waits for it or is done), so it takes every core of its process for numba and the per-image
+    work of the adjustment (:func:`lunarmap.adjust.sensors.image_threads`), whatever its dask worker's
+    ``nthreads``: on a ``LocalCluster`` of single-threaded workers the others' cores idle meanwhile. Both split
+    their work independently of the thread count (no sum is reordered), so the results are identical.
+    BLAS keeps one thread unless ``blas``: OpenBLAS's threaded LAPACK factors in another order (measured on
+    the 192-image block's adjustment with 2 BLAS threads: posterior sigmas 1.6e-7 relative apart from one
+    thread's, corrections 1.8e-10 of their largest), and the solver's own factorisations are single-threaded
+    anyway (:mod:`lunarmap.adjust.factor`).
     """
     if threads == 1:
         with single_threaded_blas():
@@ -123,7 +126,7 @@ def _threads(threads: int | str) -> Iterator[int]:
     from ..blas import blas_threads
 
     n = _cores() if threads == ALL else max(1, int(threads))
-    with blas_threads(n), _numba_threads(n), image_threads(n):
+    with (blas_threads(n) if blas else single_threaded_blas()), _numba_threads(n), image_threads(n):
         yield n
 
 
@@ -144,8 +147,10 @@ def _numba_threads(n: int) -> Iterator[None]:
         numba.set_num_threads(before)
 
 
-def _step(step: str | None, ext: str = "", threads: int | str = 1) -> Callable[[Callable[..., Done]], Callable[..., Done]]:
-    """Decorate a step ``fn(store, key, ...)``: run it under its thread policy (:func:`_threads`) and record the
+def _step(step: str | None, ext: str = "", threads: int | str = 1,
+          blas: bool = False) -> Callable[[Callable[..., Done]], Callable[..., Done]]:
+    """Decorate a step ``fn(store, key, ...)``: run it under its thread policy (:func:`_threads` of ``threads``
+    and ``blas``) and record the
     process's peak resident memory while it computes (``Done.peak_mb``, the run's per-step memory figures).
 
     With ``step``, a call whose output ``<step>/<key>[.<ext>]`` is stored only calls ``fn`` for its record,
@@ -160,7 +165,7 @@ def _step(step: str | None, ext: str = "", threads: int | str = 1) -> Callable[[
         def call(store: Store, key: str, *args: Any, **kwargs: Any) -> Done:
             if step is not None and store.has(step, key, ext):
                 return fn(store, key, *args, **kwargs)
-            with _threads(threads), peak_rss_during(0.1) as memory:
+            with _threads(threads, blas), peak_rss_during(0.1) as memory:
                 out = fn(store, key, *args, **kwargs)
             if isinstance(out, Done) and out.computed:
                 out = replace(out, peak_mb=round(memory.peak_mb, 1))
