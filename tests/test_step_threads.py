@@ -112,3 +112,27 @@ def test_a_serial_run_limits_the_barrier_step_to_one_thread(tmp_path):
     with steps.barrier_threads(1):
         step(Store(tmp_path), "k", seen)
     assert seen[0][1] == 1 and all(c == 1 for c in seen[0][0])
+
+
+def test_altimetry_table_is_read_once_per_process_and_named_when_bad(tmp_path):
+    # the run reads its shot tables before any work; the adjust step then finds them in the process's cache
+    import os
+
+    from lunarmap.errors import AltimetryInputError
+    from lunarmap.io.altimetry import AltimetryShots, write_altimetry
+
+    shots = AltimetryShots(np.array(["a", "a", "b", "b"]), np.arange(4.0), np.array([1.0, 1.1, 1.2, 1.3]),
+                           np.array([2.0, 2.1, 2.2, 2.3]), np.full(4, 1737.4e3))
+    path = write_altimetry(tmp_path / "shots.csv", shots)
+    first = steps.altimetry_table(path)
+    assert steps.altimetry_table(path) is first
+    np.testing.assert_array_equal(first.lat, shots.lat)       # oracle: the table written
+    with pytest.raises(ValueError):
+        first.radius[0] = 0.0                                 # shared: read-only
+    with open(path, "a") as fh:
+        fh.write("c,9,1,2,nan\n")                             # changed content: read again, and named
+    os.utime(path, ns=(1, 1))
+    with pytest.raises(AltimetryInputError, match="NaN"):
+        steps.altimetry_table(path)
+    with pytest.raises(AltimetryInputError, match="does not exist"):
+        steps.altimetry_table(tmp_path / "missing.csv")
