@@ -1,4 +1,4 @@
-"""Run a block with single-threaded OpenBLAS (best effort, no dependency).
+"""Run a block with single-threaded OpenBLAS, or with ``n`` threads (best effort, no dependency).
 
 Why (first met in the RPC fit): its least-squares problems are tall and thin (tens of thousands
 of rows, 39 columns). On this project's shared 2-core machines, OpenBLAS's
@@ -27,7 +27,7 @@ import sys
 import threading
 from typing import Callable, Iterator
 
-__all__ = ["single_threaded_blas"]
+__all__ = ["single_threaded_blas", "blas_threads"]
 
 _lock = threading.Lock()
 _depth = 0
@@ -83,3 +83,35 @@ def single_threaded_blas() -> Iterator[None]:
                 _saved = None
                 if "scipy.linalg" not in sys.modules:
                     _api = None     # scipy's own OpenBLAS is loaded with scipy.linalg: look again next time
+
+
+@contextlib.contextmanager
+def blas_threads(n: int) -> Iterator[None]:
+    """Context in which OpenBLAS may use ``n`` threads (a run step that runs alone: :mod:`lunarmap.workflows.steps`).
+
+    :func:`single_threaded_blas` wins: entered inside this block it limits BLAS to one thread until it exits
+    (code that found threads only spin at its sizes keeps one), and while any other thread of the process
+    holds it this block changes nothing. OpenBLAS started with ``OPENBLAS_NUM_THREADS=1`` (dask workers)
+    starts its extra threads when asked for them.
+    """
+    global _depth, _saved, _api
+    n = max(1, int(n))
+    mine: list[int] | None = None
+    with _lock:
+        if _api is None:
+            _api = _find_api()
+        api = _api
+        if _depth == 0:
+            mine = [int(get()) for get, _ in api]
+            for _, put in api:
+                put(n)
+    try:
+        yield
+    finally:
+        with _lock:
+            if mine is not None:
+                if _depth == 0:
+                    for (_, put), k in zip(api, mine):
+                        put(k)
+                elif _saved is not None:
+                    _saved = mine       # a single-threaded block of another thread restores the original count

@@ -468,6 +468,29 @@ def test_graph_stays_small_and_a_rerun_starts_no_cluster(example, serial, monkey
     assert stages.count("match") <= len(NAMES) and len(graph.pairs) == 6
     assert len(first.tasks) + len(graph.tasks) <= 2 * len(NAMES) + 3 + min(16, len(NAMES))
     assert not graph.computes()
+    # the adjustment is a barrier: every other task of the block's graph comes before or after it, so it runs
+    # alone and may take every core of its worker (workflows.steps._step(threads=ALL))
+    from dask.core import get_dependencies
+
+    dsk: dict = {}
+    for task in graph.tasks.values():
+        dsk.update(dict(task.__dask_graph__()))
+    deps = {k: set(get_dependencies(dsk, k)) & set(graph.tasks) for k in graph.tasks}
+
+    def before(k: str) -> set:
+        out, todo = set(), list(deps[k])
+        while todo:
+            d = todo.pop()
+            if d not in out:
+                out.add(d)
+                todo.extend(deps[d])
+        return out
+
+    (adj,) = [k for k, s in graph.stage_of.items() if s == "adjust"]
+    after = {k for k in graph.tasks if adj in before(k)}
+    assert before(adj) | after | {adj} == set(graph.tasks)
+    assert {graph.stage_of[k] for k in before(adj)} == {"match", "tiepoints"}
+    assert {graph.stage_of[k] for k in after} == {"kernels", "rpc_adjusted"}
 
     def no_cluster(*args, **kwargs):
         raise AssertionError("a cluster was started for a run with nothing to compute")

@@ -16,7 +16,11 @@ Image coordinates are ``(line, sample)``, pixels, CSM convention; points are bod
 
 from __future__ import annotations
 
-from typing import Sequence
+import contextlib
+import contextvars
+import os
+from concurrent.futures import ThreadPoolExecutor
+from typing import Iterator, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,7 +31,39 @@ from ..camera.sensor import Corrections, SensorModel
 from ..errors import AdjustmentInputError, DistortionPartialsError
 from .intersection import midpoint_intersection
 
-__all__ = ["SensorImageModel"]
+__all__ = ["SensorImageModel", "image_threads"]
+
+# threads for the image-by-image evaluation, per calling thread (a context variable: a step that runs alone
+# sets it, steps running side by side on other threads keep one)
+_IMAGE_THREADS: contextvars.ContextVar[int] = contextvars.ContextVar("lunarmap_image_threads", default=1)
+
+
+@contextlib.contextmanager
+def image_threads(n: int) -> Iterator[None]:
+    """Context in which :class:`SensorImageModel` evaluates its non-frame images on ``n`` threads.
+
+    Each image's projections and partials are computed exactly as on one thread, into its own rows, so the
+    results do not depend on ``n``. Only what releases the GIL (numpy, scipy's interpolation) runs side
+    by side: see ``docs/SCALING.md`` for what it gains.
+    """
+    token = _IMAGE_THREADS.set(max(1, int(n)))
+    try:
+        yield
+    finally:
+        _IMAGE_THREADS.reset(token)
+
+
+_pools: dict[tuple[int, int], ThreadPoolExecutor] = {}
+
+
+def _pool(n: int) -> ThreadPoolExecutor:
+    """A thread pool of ``n`` threads (one per ``n`` and process, started on first use: a forked child
+    gets its own)."""
+    key = (os.getpid(), n)
+    pool = _pools.get(key)
+    if pool is None:
+        pool = _pools[key] = ThreadPoolExecutor(n, thread_name_prefix="lunarmap-images")
+    return pool
 
 
 class SensorImageModel:
@@ -158,7 +194,9 @@ class SensorImageModel:
             order = rest[np.argsort(cam_idx[rest], kind="stable")]
             images, starts = np.unique(cam_idx[order], return_index=True)
             bounds = np.append(starts, order.size)
-            for k, i in enumerate(images):
+
+            def one(k: int) -> None:
+                i = images[k]
                 rows = order[bounds[k]:bounds[k + 1]]
                 corr = self.corrections[i]
                 p_i = params[i, :corr.n_params]
@@ -166,6 +204,14 @@ class SensorImageModel:
                     pix[rows], jc[rows, :, :corr.n_params], jx[rows] = corr.partials(p_i, X[rows])  # type: ignore[index]
                 else:
                     pix[rows] = corr.project(p_i, X[rows])
+
+            threads = min(_IMAGE_THREADS.get(), images.size)
+            if threads > 1:
+                for _ in _pool(threads).map(one, range(images.size)):
+                    pass        # (re-raises an image's error)
+            else:
+                for k in range(images.size):
+                    one(k)
         return pix, jc, jx
 
     def project(self, params: NDArray, cam_idx: NDArray, X: NDArray) -> NDArray[np.float64]:

@@ -50,6 +50,7 @@ from .steps import (
     adjust_step,
     adjusted_rpc_batch,
     as_dict,
+    barrier_threads,
     image_steps,
     kernels_step,
     match_batch,
@@ -595,13 +596,15 @@ def _compute(graph: _Graph, scheduler: Any, progress: _Progress) -> dict[str, An
     def post(key: Any, result: Any, dsk: Any, state: Any, worker_id: Any) -> None:
         progress.finished(key if isinstance(key, str) else str(key), result)
 
-    if scheduler in ("sync", "synchronous"):
+    serial = scheduler in ("sync", "synchronous")
+    if serial:
         # the function itself: given the name, dask imports distributed to look for a client first (a second
         # of a rerun that computes nothing)
         from dask.local import get_sync
 
         scheduler = get_sync
-    with Callback(posttask=post):
+    # a serial run is one core, also in its adjustment (a step that may otherwise take every core: steps.ALL)
+    with Callback(posttask=post), barrier_threads(1 if serial else None):
         values = dask.compute(*delayed, scheduler=scheduler)
     return dict(zip(keys, values))
 
@@ -778,11 +781,12 @@ def _run_locked(cfg: RunConfig, scheduler: Any, workers: int, report: bool | Non
             return scheduler
 
         if cfg.altimetry:
-            from ..io.altimetry import read_altimetry
+            from .steps import altimetry_table
 
-            # a bad shot table (missing column, NaN, a track of one shot) is named before any work
+            # a bad shot table (missing column, NaN, a track of one shot) is named before any work; read into
+            # the process's cache, where a serial run's adjust step finds it
             for a in cfg.altimetry:
-                read_altimetry(a.path)
+                altimetry_table(a.path)
         done = _execute(first, scheduler_for(first), progress)
         if cfg.terrain:
             from .checks import check_terrain_coverage

@@ -9,13 +9,15 @@ the same result whether its inputs were computed in this run, in an earlier one,
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import functools
 import json
 import logging
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 import xarray as xr
@@ -66,35 +68,110 @@ class Done:
     peak_mb: float = 0.0
 
 
-def _one_blas_thread(fn: Callable[..., Done]) -> Callable[..., Done]:
-    """Run a step with one BLAS thread, as on dask workers (results do not depend on where a step ran),
-    and record the process's peak resident memory while it computed (the run's per-step memory figures)."""
+#: ``threads=`` of :func:`_step` for a step that runs alone in its run's graph: every core of the process
+ALL = "all"
+
+
+# the threads of an ALL step on this thread (None: every core of the process); a serial run sets 1: it is
+# the one-core baseline its parallel runs are measured against (engine._compute)
+_BARRIER_THREADS: contextvars.ContextVar[int | None] = contextvars.ContextVar("lunarmap_barrier_threads",
+                                                                              default=None)
+
+
+@contextlib.contextmanager
+def barrier_threads(n: int | None) -> Iterator[None]:
+    """Context in which a step of ``threads=ALL`` (the adjustment) called from this thread uses ``n`` threads
+    (``None``: every core of the process)."""
+    token = _BARRIER_THREADS.set(n)
+    try:
+        yield
+    finally:
+        _BARRIER_THREADS.reset(token)
+
+
+def _cores() -> int:
+    """The cores this process may run on (or what :func:`barrier_threads` allows)."""
+    import os
+
+    limit = _BARRIER_THREADS.get()
+    if limit is not None:
+        return max(1, int(limit))
+
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:     # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+@contextlib.contextmanager
+def _threads(threads: int | str, blas: bool = False) -> Iterator[int]:
+    """The thread policy of a computing step; yields the threads it may use.
+
+    One thread (BLAS and numba) by default: steps run side by side, one per dask worker thread, and a
+    result must not depend on where it ran. :data:`ALL`: the step runs alone (a barrier of the graph: every
+    other task waits for it or is done), so it takes every core of its process for numba and the per-image
+    work of the adjustment (:func:`lunarmap.adjust.sensors.image_threads`), whatever its dask worker's
+    ``nthreads``: on a ``LocalCluster`` of single-threaded workers the others' cores idle meanwhile. Both split
+    their work independently of the thread count (no sum is reordered), so the results are identical.
+    BLAS keeps one thread unless ``blas``: OpenBLAS's threaded LAPACK factors in another order (measured on
+    the 192-image block's adjustment with 2 BLAS threads: posterior sigmas 1.6e-7 relative apart from one
+    thread's, corrections 1.8e-10 of their largest), and the solver's own factorisations are single-threaded
+    anyway (:mod:`lunarmap.adjust.factor`).
+    """
+    if threads == 1:
+        with single_threaded_blas():
+            yield 1
+        return
+    from ..adjust.sensors import image_threads
+    from ..blas import blas_threads
+
+    n = _cores() if threads == ALL else max(1, int(threads))
+    with (blas_threads(n) if blas else single_threaded_blas()), _numba_threads(n), image_threads(n):
+        yield n
+
+
+@contextlib.contextmanager
+def _numba_threads(n: int) -> Iterator[None]:
+    """numba's thread count for this thread (its ``parallel=True`` kernels), restored on exit; nothing
+    without numba."""
+    try:
+        import numba
+    except ImportError:       # pragma: no cover - numba is optional
+        yield
+        return
+    before = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(n, numba.config.NUMBA_NUM_THREADS)))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
+
+
+def _step(step: str | None, ext: str = "", threads: int | str = 1,
+          blas: bool = False) -> Callable[[Callable[..., Done]], Callable[..., Done]]:
+    """Decorate a step ``fn(store, key, ...)``: run it under its thread policy (:func:`_threads` of ``threads``
+    and ``blas``) and record the
+    process's peak resident memory while it computes (``Done.peak_mb``, the run's per-step memory figures).
+
+    With ``step``, a call whose output ``<step>/<key>[.<ext>]`` is stored only calls ``fn`` for its record,
+    without setting threads or starting the memory sampler: a rerun of thousands of reused steps does not
+    pay for them (measured: 5 ms per reused step on a loaded machine, most of a rerun's per-image time).
+    ``step=None``: always under the policy (a step that checks its stored output itself).
+    """
     from ..procmem import peak_rss_during, release_free_memory
 
-    @functools.wraps(fn)
-    def wrapped(*args: Any, **kwargs: Any) -> Done:
-        with single_threaded_blas(), peak_rss_during(0.1) as memory:
-            out = fn(*args, **kwargs)
-        if isinstance(out, Done) and out.computed:
-            out = replace(out, peak_mb=round(memory.peak_mb, 1))
-            release_free_memory()      # what the step freed leaves the worker, not only its Python heap
-        return out
-    return wrapped
-
-
-def _stored_at_once(step: str, ext: str = "") -> Callable[[Callable[..., Done]], Callable[..., Done]]:
-    """Call a :func:`_one_blas_thread` step ``fn(store, key, ...)`` without its BLAS limit and memory sampling
-    when its output ``<step>/<key>.<ext>`` is stored: the step then only returns the stored record, and a
-    rerun of thousands of reused steps does not pay for setting OpenBLAS's threads and starting a sampler
-    for each (measured: 5 ms per reused step on a loaded machine, most of a rerun's per-image time)."""
-    def decorate(wrapped: Callable[..., Done]) -> Callable[..., Done]:
-        plain: Callable[..., Done] = wrapped.__wrapped__  # type: ignore[attr-defined]
-
-        @functools.wraps(plain)
+    def decorate(fn: Callable[..., Done]) -> Callable[..., Done]:
+        @functools.wraps(fn)
         def call(store: Store, key: str, *args: Any, **kwargs: Any) -> Done:
-            if store.has(step, key, ext):
-                return plain(store, key, *args, **kwargs)
-            return wrapped(store, key, *args, **kwargs)
+            if step is not None and store.has(step, key, ext):
+                return fn(store, key, *args, **kwargs)
+            with _threads(threads, blas), peak_rss_during(0.1) as memory:
+                out = fn(store, key, *args, **kwargs)
+            if isinstance(out, Done) and out.computed:
+                out = replace(out, peak_mb=round(memory.peak_mb, 1))
+                release_free_memory()      # what the step freed leaves the worker, not only its Python heap
+            return out
+        call.threads = threads      # type: ignore[attr-defined]
         return call
     return decorate
 
@@ -186,10 +263,41 @@ def _dtm_sampler_cached(path: str, size: int, mtime: int) -> tuple[Any, float]:
     return sampler, float(np.nanmean(sampler.z))
 
 
+def altimetry_table(path: str | Path) -> Any:
+    """A laser-altimetry shot table (:func:`lunarmap.io.read_altimetry`), read once per process (cached by path,
+    size and modification time; at most 4 tables; its arrays read-only).
+
+    The run reads its tables before any work, to name a bad one (:func:`lunarmap.workflows.run`); the
+    adjust step of a serial run then finds them here instead of parsing them again.
+
+    Raises
+    ------
+    AltimetryInputError
+        As :func:`lunarmap.io.read_altimetry`.
+    """
+    try:
+        stamp = _stamp(path)
+    except OSError:
+        from ..io.altimetry import read_altimetry
+
+        return read_altimetry(path)      # names the missing table
+    return _altimetry_of(*stamp)
+
+
+@functools.lru_cache(maxsize=4)
+def _altimetry_of(path: str, size: int, mtime: int) -> Any:
+    from ..io.altimetry import read_altimetry
+
+    shots = read_altimetry(path)
+    for a in (shots.track, shots.time, shots.lon, shots.lat, shots.radius, shots.sigma):
+        if a is not None:
+            a.setflags(write=False)     # shared by every caller of this process
+    return shots
+
+
 # -- per image -------------------------------------------------------------------------------
 
-@_stored_at_once("isd", "json")
-@_one_blas_thread
+@_step("isd", "json")
 def isd_step(store: Store, key: str, name: str, label: str, metakernel: str) -> Done:
     """Image support data of one image (one SPICE pass), written as ISD JSON."""
     t = time.perf_counter()
@@ -219,8 +327,7 @@ def _camera_of(path: str, size: int, mtime: int) -> Any:
     return camera_from_isd_file(path)
 
 
-@_stored_at_once("rpc", "nc")
-@_one_blas_thread
+@_step("rpc", "nc")
 def rpc_step(store: Store, key: str, isd: Done, height_range: tuple[float, float]) -> Done:
     """The cubic RFM of an image's camera, with its independent check report (netCDF)."""
     t = time.perf_counter()
@@ -240,8 +347,7 @@ def rpc_step(store: Store, key: str, isd: Done, height_range: tuple[float, float
                 note=f"check RMS {fit.check.rms:.2e} px")
 
 
-@_stored_at_once("rpc_adjusted", "nc")
-@_one_blas_thread
+@_step("rpc_adjusted", "nc")
 def adjusted_rpc_step(store: Store, key: str, name: str, adjusted: Done, height_range: tuple[float, float]) -> Done:
     """The cubic RFM of an image's *adjusted* camera (from the adjustment's ISD), with its check report.
 
@@ -292,8 +398,7 @@ def adjusted_rpc_batch(store: Store, jobs: Sequence[tuple[str, str]], adjusted: 
     return BatchDone(records, export_rpcs(outputs, records, "rpc_adjusted") if outputs is not None else None)
 
 
-@_stored_at_once("detect", "npz")
-@_one_blas_thread
+@_step("detect", "npz")
 def detect_step(store: Store, key: str, name: str, pixels: str, params: Any, saturation: float | None) -> Done:
     """Förstner interest points of a whole image, tile by tile (``.npz``).
 
@@ -327,7 +432,7 @@ def detect_step(store: Store, key: str, name: str, pixels: str, params: Any, sat
     return Done("detect", key, name, str(path), True, time.perf_counter() - t, note=f"{pts.line.size} points")
 
 
-@_one_blas_thread
+@_step(None)      # checks its stored pyramid itself (a damaged one is computed again)
 def pyramid_step(store: Store, key: str, name: str, pixels: str, levels: int, saturation: float | None,
                  digest: str) -> Done:
     """An image's pyramid levels, computed once and stored chunked (:func:`lunarmap.io.pyramid.write_pyramid`)."""
@@ -527,8 +632,7 @@ def match_batch(store: Store, jobs: Sequence[MatchJob], dtm: str | None, params:
                        j.digests) for j in jobs]
 
 
-@_stored_at_once("match", "npz")
-@_one_blas_thread
+@_step("match", "npz")
 def match_step(store: Store, key: str, pair: tuple[str, str], pixels: tuple[str, str], isds: tuple[Done, Done],
                pyramids: tuple[Done | None, Done | None], points: Done, dtm: str | None, params: Any,
                min_overlap: float, digests: tuple[str, str] = ("", "")) -> Done:
@@ -578,8 +682,7 @@ def match_step(store: Store, key: str, pair: tuple[str, str], pixels: tuple[str,
     return Done("match", key, item, str(path), True, time.perf_counter() - t, note)
 
 
-@_stored_at_once("tiepoints", "nc")
-@_one_blas_thread
+@_step("tiepoints", "nc")
 def tiepoints_step(store: Store, key: str, names: Sequence[str], pairs: Sequence[tuple[str, str]],
                    matches: Sequence[Done], track_tol: float, attrs: dict[str, Any]) -> Done:
     """Multi-image tracks of all pairs' matches: the tie-point table (netCDF).
@@ -610,8 +713,7 @@ def tiepoints_step(store: Store, key: str, names: Sequence[str], pairs: Sequence
 
 # -- the block -------------------------------------------------------------------------------
 
-@_stored_at_once("adjust")
-@_one_blas_thread
+@_step("adjust", threads=ALL)     # a barrier of the graph: nothing runs beside it
 def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[str], isds: Sequence[Done],
                 ties: Done, points: str | None, degree: int, navigation: dict[str, Any] | None,
                 estimate_tie_variance: bool, ftol: float, attrs: dict[str, Any],
@@ -660,6 +762,7 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
     from ..adjust.export import adjusted_image_support
     from ..adjust.terrain import ReferenceDtm
     from ..adjust.variance import estimate_image_variances
+    from ..camera.factory import camera_from_isd
     from ..errors import TerrainInputError
     from ..matching.tiepoints import read_tiepoints
     from ..orientation.isd import ImageSupport
@@ -668,7 +771,10 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
     # the step's own peak memory, sampled while it runs, goes into summary.json
     with peak_rss_during() as memory:
         try:
-            cams = {n: _camera(d) for n, d in zip(names, isds)}
+            # each ISD read once, for its camera and for its adjusted copy (a 192-image block read them twice:
+            # 0.1-0.2 s each, most of it checking the arrays)
+            supports = {n: ImageSupport.read_json(d.path) for n, d in zip(names, isds)}
+            cams = {n: camera_from_isd(supports[n]) for n in names}
             net = network_from_tiepoints(read_tiepoints(ties.path))
             if points is not None:
                 pts_net = read_network(points)
@@ -688,7 +794,7 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
 
                 jspec = JitterSpec(jitter["knot_lines"], jitter["sigma"], jitter.get("zero_sigma"),
                                    jitter.get("images"))
-            alts = [LaserAltimetry(a["path"], a["sigma"], interpolation_sigma_m=a.get("interpolation_sigma", 0.0),
+            alts = [LaserAltimetry(altimetry_table(a["path"]), a["sigma"], interpolation_sigma_m=a.get("interpolation_sigma", 0.0),
                                    offset_sigma_m=a.get("offset_sigma"), drift=bool(a.get("drift", False)),
                                    name=f"altimetry {a['name']}") for a in altimetry or ()]
             block = build_block(cams, net, degree=degree, navigation=spec, terrain=refs, jitter=jspec, altimetry=alts)
@@ -724,7 +830,7 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
             res = BlockResult(Block(block.names, block.model, block.network, result.problem, block.navigation), result)
             _log.info("adjust: sigma0 %.4f after %d iterations; writing adjusted ISDs, posterior precision, "
                       "check points", res.sigma0, int(res.result.iterations))
-            adjusted_isds = adjusted_image_support(res, {n: ImageSupport.read_json(d.path) for n, d in zip(names, isds)})
+            adjusted_isds = adjusted_image_support(res, supports)
         except TerrainInputError:
             raise           # named as it is (DtmCrsError, DtmCoverageError): the DTM is the user's to fix
         except LunarmapError as err:
@@ -990,7 +1096,7 @@ def kernel_sets(isds: Sequence[Any]) -> list[list[int]]:
     return [sorted(g) for g in sets]
 
 
-@_one_blas_thread
+@_step(None)      # beside the adjusted RFMs' tasks: one thread
 def kernels_step(store: Store, key: str, names: Sequence[str], adjusted: Done, isds: Sequence[Done],
                  metakernel: str) -> Done:
     """The adjusted orientation as SPK + CK + a meta-kernel layered over the run's kernels.
