@@ -65,12 +65,20 @@ too small; estimate the variance components instead):
 * the track offsets' errors share the block's radius error (their common part, sigma 30 / sqrt(24) = 6.1 m,
   measured 6.6 m RMS): per block all tracks are within 2 sigma or none (23 of 24 seeds all, one none: its
   common error 2.3 sigma); pooled 95.8 %.
-* steeper terrain (sines of 2000 m relief, slope 1.8 deg, interpolation error 32 m at 4.6 km, 8 m at 2.3 km):
-  ``slopes=True`` with the true interpolation sigma pulls the points off horizontally (errors / sigma 3.5); on
-  cratered terrain (craters 2-20 km, slope 28 deg RMS, interpolation error 350 m at 2.3 km) the shots fix
-  neither radius nor position, and ``slopes=True`` makes the horizontal worse (57 -> 90 m, errors / sigma 5).
-  The interpolant's error is not white: its gradient correlates with the plane's over whole features, and
-  every shot's slope row then carries it as information.
+* steeper terrain (the sines at 2000 m relief: slope 1.8 deg; the true surface's interpolation error 39 m at
+  4.6 km, 26 m at 2.3 km between tie points, given as the interpolation sigma), orientation error at the check
+  points, navigation alone -> with shots (3-D / horizontal, errors / sigma horizontal):
+  300 points, 4 seeds: ``slopes=False`` 123 -> 66 / 63 m (0.53); ``slopes=True`` 331 / 330 m (6.5);
+  ``slopes=False`` then ``slopes=True`` from the settled points, re-triangulated: 279 / 279 m (5.5).
+  1200 points, 3 seeds: ``slopes=False`` 102 -> 56 / 55 m (0.52), radial 63 -> 7.5 m (8.4 x);
+  ``slopes=True`` 707 / 707 m (25); fixed then recomputed: 184 / 184 m (6.9).
+  On cratered terrain (craters 2-20 km over rolling terrain: slope 28 deg RMS, interpolation error 350 m at
+  2.3 km; 2 seeds) the shots fix neither radius (tie points 160 -> 148 m) nor position, and ``slopes=True``
+  makes the horizontal worse (57 -> 90 m, errors / sigma 5). The horizontal datum is the navigation's in every
+  regime tried: the interpolant's error is not white (it follows the terrain's curvature over whole features
+  and correlates with the plane's slope), so each shot's slope row carries it as information with a sigma
+  that treats it as noise. ``slopes=True`` is not recommended until the interpolation error is modelled (a
+  denser surface than the tie points, e.g. a DTM, :mod:`lunarmap.adjust.terrain`).
 
 Skipping: shots outside every triangle of the tie points get no observation and are counted
 (:attr:`AltimetryObservations.skipped`); if all shots are outside,
