@@ -381,3 +381,14 @@ def test_free_track_offsets_without_navigation_are_a_datum_defect():
     block = lunarmap.build_block(sensors, net, altimetry=[LaserAltimetry(sim.shots, sigma_m=SHOT_SIGMA)])
     with pytest.raises(DatumDefectError):
         lunarmap.solve(block, SolverOptions(ftol=1e-10))
+
+
+def test_frame_block_takes_a_terrain_of_its_own():
+    """frame_block(height=...) puts the true points on that terrain (bench/altimetry_datum.py's cratered runs)."""
+    def h(lon, lat):
+        return 300.0 * np.sin(np.radians(lon) * 400.0) * np.cos(np.radians(lat) * 300.0)
+
+    sb = frame_block(orbits=2, per_orbit=4, points=60, n_control=0, seed=1, height=h)
+    lon, lat, hh = xyz_to_lonlat_height(sb.true_points, MOON_RADIUS)
+    np.testing.assert_allclose(hh, h(lon, lat), atol=1e-6)
+    assert np.ptp(hh) > 100.0

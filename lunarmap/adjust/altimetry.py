@@ -46,6 +46,40 @@ points). Free offsets and a block without navigation or control is a datum defec
 sigma (LOLA's radial orbit error after the crossover adjustment, ~1 m; raw tracks: tens of metres): those
 pseudo-observation rows are in no variance-component group and not w-tested.
 
+What the shots fix, measured (``bench/altimetry_datum.py``; the test's fore/aft frame block, 2 orbits x 8 images,
+no control points, per-orbit navigation errors, 24 tracks, shots 0.5 m, interpolation sigma 1 m, offsets 30 m;
+a-priori covariances, as the simulation's noise is the a-priori's: the posterior ones are scaled by sigma0^2,
+which the altimeter's pessimistic interpolation sigma pulls to 0.66 and would make the image-driven sigmas 1.5 x
+too small; estimate the variance components instead):
+
+* gentle terrain (50 m relief, slope 0.05 deg at the tie points' 4.6 km spacing), 24 seeds, ``slopes=False``:
+  tie points' radial RMS 225 -> 12.0 m (18.8 x; predicted sigma 16.3 m), the block's orientation error at the
+  check points free of their own noise (noise-free rays through the adjusted images) radial 176 -> 27.6 m
+  (predicted 25.4), horizontal 111.5 -> 108.5 m (predicted 117: the navigation's), 3-D 208 -> 112 m (1.9 x).
+  The check points' own 3-D RMS 268 -> 197 m (predicted 198) is their intersection's (0.3 px of a 102 m pixel,
+  base/height 0.54: radial sigma 60-400 m per point), so no check point of this block can show 10 x.
+* errors / sigma pooled over the 24 seeds: 0.92-1.09 for every part (check, tie, orientation; radial,
+  horizontal, 3-D); per seed 0.2-2.2, with effective degrees of freedom k_eff = 2 m^2 / var of the per-seed
+  mean z^2 of 1.5-1.8 (horizontal) and 3-4 (3-D): the navigation's few per-orbit draws. A per-block
+  "within 1 +- 0.2" then holds with probability 0.25-0.45 (sqrt(chi2_k / k)), as measured (17-54 % of seeds).
+* the track offsets' errors share the block's radius error (their common part, sigma 30 / sqrt(24) = 6.1 m,
+  measured 6.6 m RMS): per block all tracks are within 2 sigma or none (23 of 24 seeds all, one none: its
+  common error 2.3 sigma); pooled 95.8 %.
+* steeper terrain (the sines at 2000 m relief: slope 1.8 deg; the true surface's interpolation error 39 m at
+  4.6 km, 26 m at 2.3 km between tie points, given as the interpolation sigma), orientation error at the check
+  points, navigation alone -> with shots (3-D / horizontal, errors / sigma horizontal):
+  300 points, 4 seeds: ``slopes=False`` 123 -> 66 / 63 m (0.53); ``slopes=True`` 331 / 330 m (6.5);
+  ``slopes=False`` then ``slopes=True`` from the settled points, re-triangulated: 279 / 279 m (5.5).
+  1200 points, 3 seeds: ``slopes=False`` 102 -> 56 / 55 m (0.52), radial 63 -> 7.5 m (8.4 x);
+  ``slopes=True`` 707 / 707 m (25); fixed then recomputed: 184 / 184 m (6.9).
+  On cratered terrain (craters 2-20 km over rolling terrain: slope 28 deg RMS, interpolation error 350 m at
+  2.3 km; 2 seeds) the shots fix neither radius (tie points 160 -> 148 m) nor position, and ``slopes=True``
+  makes the horizontal worse (57 -> 90 m, errors / sigma 5). The horizontal datum is the navigation's in every
+  regime tried: the interpolant's error is not white (it follows the terrain's curvature over whole features
+  and correlates with the plane's slope), so each shot's slope row carries it as information with a sigma
+  that treats it as noise. ``slopes=True`` is not recommended until the interpolation error is modelled (a
+  denser surface than the tie points, e.g. a DTM, :mod:`lunarmap.adjust.terrain`).
+
 Skipping: shots outside every triangle of the tie points get no observation and are counted
 (:attr:`AltimetryObservations.skipped`); if all shots are outside,
 :class:`~lunarmap.errors.AltimetryCoverageError`. A track left with fewer than two shots inside is dropped

@@ -21,7 +21,7 @@ the TRUE cameras (the rigorous models, not the adjustment's equations) plus Gaus
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -173,7 +173,7 @@ def frame_block(orbits: int = 4, per_orbit: int = 12, points: int = 1500, n_cont
                 relief: float = 2000.0, speed: float = 1600.0, seed: int = 0, cameras: int = 1,
                 tilt_deg: Sequence[float] | None = None, forward_overlap: float = 0.6, side_overlap: float = 0.3,
                 offsets: ArrayLike | None = None, drifts: ArrayLike | None = None,
-                min_rays: int = 2) -> SimulatedBlock:
+                min_rays: int = 2, height: Callable[[Array, Array], Array] | None = None) -> SimulatedBlock:
     """The DLR paper's frame block (module docstring); lengths metres, angles radians, drifts per second.
 
     Parameters
@@ -214,6 +214,9 @@ def frame_block(orbits: int = 4, per_orbit: int = 12, points: int = 1500, n_cont
         default: drawn with the sigmas above.
     min_rays : int
         Points seen by fewer images are not kept.
+    height : callable, optional
+        The true terrain ``height(lon, lat)``: metres above the Moon sphere at planetocentric degrees (e.g. a
+        cratered DTM's interpolant); default :func:`frame_block_height` with ``relief``.
     """
     if orbits < 1 or per_orbit < 2:
         raise InvalidInputError(f"a frame block needs >= 1 orbit of >= 2 images, got {orbits} x {per_orbit}")
@@ -282,7 +285,8 @@ def frame_block(orbits: int = 4, per_orbit: int = 12, points: int = 1500, n_cont
     m = 6 * points
     plat = rng.uniform(lats.min() - margin, lats.max() + margin, m)
     plon = rng.uniform(lons.min() - margin, lons.max() + margin, m)
-    h = _frame_height(plon, plat, relief)
+    h = (_frame_height(plon, plat, relief) if height is None
+         else np.asarray(height(np.degrees(plon), np.degrees(plat)), float))
     X = lonlat_height_to_xyz(np.degrees(plon), np.degrees(plat), h)
     sig_cam = np.asarray(sigma_px, float)
     if sig_cam.ndim == 0:
