@@ -752,6 +752,12 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
             summary["terrain"], terrain_ds = _terrain_outputs(block, res, qc_out, est, list(terrain or ()))
         if block.altimetry:
             summary["altimetry"] = _altimetry_outputs(block, res, qc_out, list(altimetry or ()))
+        if jspec is not None:
+            from ..evaluate.jitter import jitter_spectra
+
+            # the adjusted splines' attitude correction per image and axis: RMS, posterior sigma, spectrum
+            summary["jitter"] = jitter_spectra(block.model, res.result.cam_params, res.result.precision().cam_cov,
+                                               names)
 
         def write(folder: Path) -> None:
             geo = {"crs": MOON_GEOGRAPHIC_CRS, **attrs}
