@@ -130,7 +130,8 @@ class DemoReport:
         if o:
             out.append(f"  altimetry: {o['tracks']} tracks, offsets vs truth RMS {o['error_rms_m']:.3f} m (truth RMS "
                        f"{o['truth_rms_m']:.2f} m), within 2 sigma {o['within_2sigma']:.0%}, within 3 sigma "
-                       f"{o['within_3sigma']:.0%}; errors / sigma RMS {o['normalized_rms']:.2f}; shot residual RMS "
+                       f"{o['within_3sigma']:.0%}; errors / sigma RMS {o['normalized_rms']:.2f} (common to all tracks "
+                       f"{o['common_error_m']:+.2f} m, relative RMS {o['relative_error_rms_m']:.3f} m); shot residual RMS "
                        f"{o['rms_residual_m']:.3f} m")
         j = t.get("jitter")
         if j:
@@ -419,6 +420,9 @@ def terrain_against_truth(result: Any, bm: Any, nav: dict[str, Any], example: Pa
                 "truth_rms_m": float(np.sqrt(np.mean(tr ** 2))), "sigma_rms_m": float(np.sqrt(np.mean(sg ** 2))),
                 "within_2sigma": float(np.mean(np.abs(e) <= 2 * sg)), "within_3sigma": float(np.mean(np.abs(e) <= 3 * sg)),
                 "normalized_rms": float(np.sqrt(np.mean((e / sg) ** 2))), "rms_residual_m": float(a["rms_residual_m"]),
+                # the tracks' common error is the block's height datum (the mean of the true offsets, known to
+                # offset_sigma / sqrt(tracks)); what is left is the tracks' offsets relative to each other
+                "common_error_m": float(np.mean(e)), "relative_error_rms_m": float(np.sqrt(np.mean((e - e.mean()) ** 2))),
                 "per_track": {k: {"estimated_m": v["offset_m"], "sigma_m": v["offset_sigma_m"],
                                   "truth_m": truth[k]["offset_m"]} for k, v in est.items()}}
     jt = block_jitter_truth(bm.folder)

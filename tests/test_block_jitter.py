@@ -93,11 +93,14 @@ def test_run_with_a_shot_table_missing_a_column_names_it_before_any_work(jittere
     (tmp_path / "shots.csv").write_text("track,time,lon,lat\nT0,0.0,161.5,57.0\nT0,1.0,161.5,57.001\n")
     images = "".join(f'[[images]]\nname = "{n}"\nlabel = "{bm.folder / (n + ".lbl")}"\n'
                      f'pixels = "{tmp_path / (n + ".nc")}"\n' for n in ("orbit1_nac", "orbit2_nac"))
-    for n in ("orbit1_nac", "orbit2_nac"):
-        (tmp_path / f"{n}.nc").write_bytes(b"")           # never read: the shot table stops the run first
+    import xarray as xr
+
+    for n in ("orbit1_nac", "orbit2_nac"):       # a readable image header; its pixels are never read
+        xr.DataArray(np.zeros((512, 512), np.float32), dims=("line", "sample")).to_netcdf(tmp_path / f"{n}.nc")
     cfg = tmp_path / "run.toml"
     cfg.write_text(f'[run]\noutput = "run"\n\n[kernels]\nmetakernel = "{bm.folder / "navigation.tm"}"\n\n{images}\n'
-                   '[adjust]\ndegree = 1\n\n[adjust.terrain]\n[[adjust.terrain.altimetry]]\npath = "shots.csv"\n'
+                   '[adjust]\ndegree = 1\n\n[adjust.navigation]\nposition_sigma = 0.5\nattitude_sigma = 1e-6\n\n'
+                   '[adjust.terrain]\n[[adjust.terrain.altimetry]]\npath = "shots.csv"\n'
                    'sigma = 0.5\n')
     assert main(["run", str(cfg), "--serial"]) == 2
     err = capsys.readouterr().err
