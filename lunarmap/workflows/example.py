@@ -296,8 +296,11 @@ def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = F
         bm = write_block_mission(mdir, seed=seed, sites=sites, site_half_width_s=site_half_width_s, layout=layout,
                                  **extra)
         files = [mdir / f for f in _mission_files(bm)]
+        from ..simulate.block_jitter import JITTER_TRUTH, add_block_jitter
+
+        # the truth of a jitter the new TRUTH CK does not have would mislead a comparison
+        (mdir / JITTER_TRUTH).unlink(missing_ok=True)
         if terrain:
-            from ..simulate.block_jitter import JITTER_TRUTH, add_block_jitter
 
             _log.info("example: bus attitude jitter (%s) in the TRUTH CK", ", ".join(
                 f"{a * 1e6:g} urad at {f:g} Hz" for a, f in TERRAIN_EXAMPLE["jitter_waves"]))
