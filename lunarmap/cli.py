@@ -11,10 +11,12 @@
     a second one stops with a named error, or waits with ``--wait``; ``--force`` takes the folder
     whatever its lock says. ``--check`` verifies every stored output against its checksum without
     computing anything (exit status 1 when one is damaged).
-``lunarmap run --example [--output DIR] [--seed N] [--quick] [--full-size]`` (= ``lunarmap demo``)
+``lunarmap run --example [--output DIR] [--seed N] [--quick] [--full-size | --terrain]`` (= ``lunarmap demo``)
     writes the embedded example (a synthetic mission with rendered images and perturbed navigation;
-    with ``--full-size`` eight LRO-NAC-like images of 52,224 x 5,064 pixels as ISIS cubes) and runs it;
-    prints accuracy against the simulation's truth. What is already written is not written again.
+    with ``--full-size`` eight LRO-NAC-like images of 52,224 x 5,064 pixels as ISIS cubes; with
+    ``--terrain`` LOLA-like altimetry tracks, bus jitter in the true CK and no control points, adjusted
+    with ``[[adjust.terrain.altimetry]]`` and ``[adjust.jitter]``) and runs it; prints accuracy against
+    the simulation's truth. What is already written is not written again.
 ``lunarmap --version``
     prints the installed version (``lunarmap.__version__``) and exits.
 ``lunarmap ranger-kernels TABLE -o DIR [--focal-length MM --format MM --pixel MM]``
@@ -100,16 +102,25 @@ def _scheduler(args: argparse.Namespace) -> Any:
     return "sync" if args.serial else args.scheduler
 
 
+def _example_output(args: argparse.Namespace) -> None:
+    """The example's folder: ``--output``, or the default of the example chosen."""
+    if getattr(args, "output", None) is None:
+        args.output = "demo_terrain_output" if getattr(args, "terrain", False) else "demo_output"
+    if getattr(args, "terrain", False) and getattr(args, "full_size", False):
+        raise SystemExit("lunarmap run: --terrain and --full-size are two examples; give one")
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     import logging
 
+    _example_output(args)
     handler = _progress_to_stderr()
     logging.getLogger("lunarmap").info("example in %s: loading lunarmap (numpy, dask, SPICE)", args.output)
     from .demo import run_demo
 
     try:
         report = run_demo(args.output, seed=args.seed, quick=args.quick, scheduler=_scheduler(args),
-                          workers=args.workers, full_size=args.full_size)
+                          workers=args.workers, full_size=args.full_size, terrain=args.terrain)
     finally:
         logging.getLogger("lunarmap").removeHandler(handler)
     print(report.text())
@@ -119,11 +130,13 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 def _cmd_plan(args: argparse.Namespace) -> int:
     from .workflows import plan, write_example
 
+    _example_output(args)
     handler = _progress_to_stderr()
     try:
         config = args.config
         if args.example:
-            config = write_example(args.output, seed=args.seed, quick=args.quick, full_size=args.full_size)
+            config = write_example(args.output, seed=args.seed, quick=args.quick, full_size=args.full_size,
+                                   terrain=args.terrain)
         print(plan(config).text())
     finally:
         import logging
@@ -215,13 +228,18 @@ def build_parser() -> argparse.ArgumentParser:
         q.add_argument("--scheduler", help="address of a running dask scheduler (default: a local cluster)")
         q.add_argument("--workers", type=int, default=2, help="processes of the local cluster (default 2)")
         q.add_argument("--serial", action="store_true", help="run every step in this process, one after another")
-        q.add_argument("--output", "-o", default="demo_output", help="with --example: folder for everything it writes")
+        q.add_argument("--output", "-o", default=None,
+                       help="with --example: folder for everything it writes (default demo_output, with --terrain "
+                            "demo_terrain_output)")
         q.add_argument("--seed", type=int, default=0, help="with --example: seed of the mission, scene, measurements")
         q.add_argument("--quick", action="store_true",
                        help="with --example: fewer interest and check points (same chain, faster)")
         q.add_argument("--full-size", action="store_true",
                        help="with --example: 8 full-size LRO-NAC-like images (52,224 x 5,064 pixels, ISIS cubes, "
                             "~2.3 GB, minutes to render) instead of the 12 small ones")
+        q.add_argument("--terrain", action="store_true",
+                       help="with --example: LOLA-like altimetry tracks and CK jitter on the line scanners, adjusted "
+                            "with [[adjust.terrain.altimetry]] and [adjust.jitter]; no control points")
     r.set_defaults(func=_cmd_run)
     d.set_defaults(func=_cmd_demo, example=True)
     g = sub.add_parser("ranger-kernels", help="write a Ranger flight-parameter table as SPICE kernels and labels")

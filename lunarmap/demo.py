@@ -74,6 +74,7 @@ class DemoReport:
     peak_rss_mb: dict[str, float] = field(default_factory=dict)
     peak_rss_mb_by_step: dict[str, float] = field(default_factory=dict)
     files: dict[str, Path] = field(default_factory=dict)
+    terrain: dict[str, Any] = field(default_factory=dict)
 
     def text(self) -> str:
         """A printable summary."""
@@ -107,9 +108,38 @@ class DemoReport:
                 for k, v in self.peak_rss_mb.items())
                + ("; by step: " + ", ".join(f"{k} {v:.0f}" for k, v in self.peak_rss_mb_by_step.items())
                   if self.peak_rss_mb_by_step else "")] if self.peak_rss_mb else []),
+            *self.terrain_lines(),
             f"  report: {self.files.get('report', '')}; configuration: {self.files.get('config', '')}",
         ]
         return "\n".join(lines)
+
+    def terrain_lines(self) -> list[str]:
+        """The terrain / jitter example's figures against the truth (empty for the other examples)."""
+        t = self.terrain
+        if not t:
+            return []
+        out = []
+        ref = t.get("check_rms_without_m")
+        if ref is not None:
+            r3 = float(np.sqrt(np.sum(np.square(ref))))
+            a3 = float(np.sqrt(np.sum(np.square(self.check_rms_after))))
+            out.append(f"  check points 3-D RMS (m): navigation alone (no altimetry, no jitter) {r3:.3f}, with altimetry "
+                       f"and jitter {a3:.3f} ({r3 / a3:.1f}x); along/cross/height without "
+                       + " ".join(f"{v:.3f}" for v in ref))
+        o = t.get("offsets")
+        if o:
+            out.append(f"  altimetry: {o['tracks']} tracks, offsets vs truth RMS {o['error_rms_m']:.3f} m (truth RMS "
+                       f"{o['truth_rms_m']:.2f} m), within 2 sigma {o['within_2sigma']:.0%}, within 3 sigma "
+                       f"{o['within_3sigma']:.0%}; errors / sigma RMS {o['normalized_rms']:.2f} (common to all tracks "
+                       f"{o['common_error_m']:+.2f} m, relative RMS {o['relative_error_rms_m']:.3f} m); shot residual RMS "
+                       f"{o['rms_residual_m']:.3f} m")
+        j = t.get("jitter")
+        if j:
+            out.append(f"  jitter ({j['truth']}): recovered on {j['images']} line-scan images, roll/pitch error RMS "
+                       f"{1e6 * j['error_rms_rad']:.3f} urad = {j['error_fraction']:.0%} of the truth's RMS "
+                       f"({1e6 * j['truth_rms_rad']:.3f} urad); spectrum peak {j['peak_hz_median']:.2f} Hz (truth "
+                       f"{j['truth_peak_hz_median']:.2f} Hz)")
+        return out
 
 
     def sigma0_text(self) -> str:
@@ -216,7 +246,7 @@ def _grid(cam: Any, n: int = 9) -> tuple[np.ndarray, np.ndarray]:
 
 
 def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quick: bool = False,
-             scheduler: Any = None, workers: int = 2, full_size: bool = False) -> DemoReport:
+             scheduler: Any = None, workers: int = 2, full_size: bool = False, terrain: bool = False) -> DemoReport:
     """Run the chain (module docstring) in ``output``; returns its figures.
 
     Parameters
@@ -232,6 +262,10 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
     full_size : bool
         The full-size example (8 LRO-NAC-like images of 52,224 x 5,064 pixels as ISIS cubes; see
         :func:`lunarmap.workflows.write_example`).
+    terrain : bool
+        The terrain / jitter example (``write_example(terrain=True)``): the figures then also compare, with
+        the truth, the check points of an adjustment without altimetry and jitter (navigation alone), the
+        per-track altimetry offsets and the adjusted jitter (``DemoReport.terrain``).
     """
     import lunarmap
 
@@ -244,7 +278,7 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
 
     out = Path(output)
     t = time.perf_counter()
-    config = write_example(out, seed=seed, quick=quick, full_size=full_size)
+    config = write_example(out, seed=seed, quick=quick, full_size=full_size, terrain=terrain)
     t_example = time.perf_counter() - t
     _log.info("example written (mission, rendered images, control and check points, run.toml): %.1f s", t_example)
     result = run(config, scheduler=scheduler, workers=workers)
@@ -317,10 +351,14 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
             qc_truth = qc_against_truth(resid, truth, names, dtm)
             _log.info("QC against the simulation's true conjugates: %d of %d removed tie observations are true "
                       "mismatches (%.1f s)", qc_truth["removed_wrong"], qc_truth["removed"], time.perf_counter() - t)
-            if result.report is not None:
-                from .workflows.report import write_report
+    terrain_figures: dict[str, Any] = {}
+    if terrain:
+        terrain_figures = terrain_against_truth(result, bm, nav, out)
+    if qc_truth or terrain_figures:
+        if result.report is not None:
+            from .workflows.report import write_report
 
-                write_report(result, qc_truth=qc_truth)      # the report's verdict says it too
+            write_report(result, qc_truth=qc_truth or None)      # the report's verdict says it too
     report = DemoReport(
         folder=out, images=names, orbits=bm.model.orbits, n_tie_points=int(s["n_points"]), n_observations=int(s["n_observations"]),
         sigma0=float(s["sigma0"]), tie_sigma_scale=float(s["tie_sigma_scale"]),
@@ -336,9 +374,131 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
         files={"metakernel": result.outputs.get("metakernel", result.outputs["kernels"]),
                "tiepoints": result.outputs["tiepoints"],
                "report": result.report or Path(), "config": config, "navigation": bm.navigation_metakernel,
-               "truth": bm.truth_metakernel})
+               "truth": bm.truth_metakernel}, terrain=terrain_figures)
     _write_figures(cache, stamp, report)
     return report
+
+
+def terrain_against_truth(result: Any, bm: Any, nav: dict[str, Any], example: Path) -> dict[str, Any]:
+    """The terrain / jitter example's figures against the simulation's truth.
+
+    * ``check_rms_without_m``: check-point RMS (along, cross, height; m) of the same block adjusted without
+      altimetry and jitter (navigation alone; :func:`lunarmap.workflows.steps.adjust_step` on the run's
+      tie points, in ``<run>/reference``);
+    * ``offsets``: the per-track altimetry offsets against ``altimetry_truth.json`` (error RMS, the share
+      within 2 and 3 posterior sigma, errors / sigma RMS);
+    * ``jitter``: the adjusted splines against ``mission/jitter_truth.json`` (roll / pitch axes: the yaw
+      about the boresight moves the image edges by microns of a pixel, it is held by the zero prior); the
+      run summary's ``jitter`` section gets the truth's and the error's spectra (for the report).
+    """
+    from .evaluate.jitter import jitter_spectra
+    from .simulate.block_jitter import block_jitter_truth
+    from .workflows.example import ALTIMETRY_TRUTH
+
+    s = result.summary
+    figures: dict[str, Any] = {}
+    t = time.perf_counter()
+    ref = _reference_adjustment(result)
+    if ref is not None and "check_rms_after_m" in ref:
+        figures["check_rms_without_m"] = list(ref["check_rms_after_m"])
+        figures["check_sigma_without_m"] = list(ref["check_sigma_after_m"])
+        figures["check_normalized_rms_without"] = float(ref["check_normalized_rms"])
+    _log.info("demo: the block adjusted without altimetry and jitter (navigation alone) in %.1f s",
+              time.perf_counter() - t)
+    alt = (s.get("altimetry") or {})
+    truth_path = example / ALTIMETRY_TRUTH
+    if alt and truth_path.exists():
+        truth = json.loads(truth_path.read_text())["tracks"]
+        a = next(iter(alt.values()))
+        est = {k: v for k, v in a["tracks"].items() if k in truth}
+        e = np.array([v["offset_m"] - truth[k]["offset_m"] for k, v in est.items()])
+        sg = np.array([v["offset_sigma_m"] for v in est.values()])
+        tr = np.array([truth[k]["offset_m"] for k in est])
+        if e.size:
+            figures["offsets"] = {
+                "tracks": int(e.size), "error_rms_m": float(np.sqrt(np.mean(e ** 2))),
+                "truth_rms_m": float(np.sqrt(np.mean(tr ** 2))), "sigma_rms_m": float(np.sqrt(np.mean(sg ** 2))),
+                "within_2sigma": float(np.mean(np.abs(e) <= 2 * sg)), "within_3sigma": float(np.mean(np.abs(e) <= 3 * sg)),
+                "normalized_rms": float(np.sqrt(np.mean((e / sg) ** 2))), "rms_residual_m": float(a["rms_residual_m"]),
+                # the tracks' common error is the block's height datum (the mean of the true offsets, known to
+                # offset_sigma / sqrt(tracks)); what is left is the tracks' offsets relative to each other
+                "common_error_m": float(np.mean(e)), "relative_error_rms_m": float(np.sqrt(np.mean((e - e.mean()) ** 2))),
+                "per_track": {k: {"estimated_m": v["offset_m"], "sigma_m": v["offset_sigma_m"],
+                                  "truth_m": truth[k]["offset_m"]} for k, v in est.items()}}
+    jt = block_jitter_truth(bm.folder)
+    jit = s.get("jitter") or {}
+    if jt is not None and jit:
+        names = [n for n in s["images"] if n in jit]
+        with xr.open_dataset(result.outputs["adjustment"] / "corrections.nc") as ds:
+            corr = ds.load()
+        knot = float(next(iter(jit.values()))["knot_lines"])
+
+        class _Model:          # the run's corrections rebuilt on its navigation cameras (the block's own)
+            corrections = [nav[n].corrections(degree=int(result.config.degree), jitter_lines=knot) for n in names]
+
+        m = _Model()
+        P = np.zeros((len(names), max(c.n_params for c in m.corrections)))
+        for i, (n, c) in enumerate(zip(names, m.corrections)):
+            v = corr["value"].sel(image=n).values
+            pn = [str(x) for x in corr["param"].values]
+            P[i, :c.n_params] = [float(v[pn.index(k)]) for k in c.names]
+        spec = jitter_spectra(m, P, None, names, truth=jt.sensor)
+        for n in names:            # the truth's and the error's spectra into the summary (for the report)
+            jit[n].update({k: v for k, v in spec[n].items() if k.startswith(("truth_", "error_"))})
+        err = np.array([spec[n]["error_rms_rad"][:2] for n in names])
+        tru = np.array([spec[n]["truth_rms_rad"][:2] for n in names])
+        figures["jitter"] = {
+            "truth": ", ".join(f"{a * 1e6:g} urad at {f:g} Hz" for a, f in jt.waves), "images": len(names),
+            "error_rms_rad": float(np.sqrt(np.mean(err ** 2))), "truth_rms_rad": float(np.sqrt(np.mean(tru ** 2))),
+            "error_fraction": float(np.sqrt(np.mean(err ** 2)) / np.sqrt(np.mean(tru ** 2))),
+            "peak_hz_median": float(np.median([spec[n]["peak_hz"][:2] for n in names])),
+            "truth_peak_hz_median": float(np.median([spec[n]["truth_peak_hz"][:2] for n in names])),
+            "per_image": {n: {k: spec[n][k] for k in ("rms_rad", "truth_rms_rad", "error_rms_rad", "peak_hz",
+                                                      "truth_peak_hz", "peak_amplitude_rad", "truth_peak_amplitude_rad")}
+                          for n in names}}
+    return figures
+
+
+def _reference_adjustment(result: Any) -> dict[str, Any] | None:
+    """The run's block adjusted without altimetry and jitter (its tie points, points, navigation and QC):
+    the adjustment step's summary, stored in ``<run>/reference``."""
+    from dataclasses import asdict
+
+    from .workflows.steps import Done, adjust_step
+    from .workflows.store import Store
+
+    cfg = result.config
+    names = [im.name for im in cfg.images]
+    isds = [Done("isd", "", n, str(result.outputs["isd"] / f"{n}.json"), False) for n in names]
+    ties = Done("tiepoints", "", "", str(result.outputs["tiepoints"]), False)
+    nav = None
+    if cfg.navigation is not None:
+        n = cfg.navigation
+        nav = {"position_sigma": n.position_sigma, "attitude_sigma": n.attitude_sigma,
+               "position_rate_sigma": n.position_rate_sigma, "attitude_rate_sigma": n.attitude_rate_sigma,
+               "offset": n.offset, "drift": n.drift,
+               "offset_sigma": list(n.offset_sigma) if n.offset_sigma else None,
+               "drift_sigma": list(n.drift_sigma) if n.drift_sigma else None}
+    qc = None if cfg.qc is None or not cfg.qc.steps else {**asdict(cfg.qc), "steps": list(cfg.qc.steps)}
+    store = Store(result.folder / "reference")
+    import hashlib
+
+    key = hashlib.sha256(json.dumps({"tiepoints": _file_digest(ties.path), "isd": [_file_digest(d.path) for d in isds],
+                                     "nav": nav, "qc": qc, "degree": cfg.degree}, sort_keys=True,
+                                    default=str).encode()).hexdigest()[:24]
+    done = adjust_step(store, key, names, [im.group for im in cfg.images], isds, ties,
+                       str(cfg.points) if cfg.points is not None else None, cfg.degree, nav, cfg.estimate_tie_variance,
+                       cfg.ftol, {}, qc, cfg.points_other_images)
+    try:
+        return dict(json.loads((Path(done.path) / "summary.json").read_text()))
+    except (OSError, ValueError):
+        return None
+
+
+def _file_digest(path: str) -> str:
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 #: The demo's figures beside its run (``<run>/demo.json``), for a rerun that computes nothing.

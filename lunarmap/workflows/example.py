@@ -43,7 +43,7 @@ import numpy as np
 
 from ..atomic import atomic_write
 
-__all__ = ["write_example", "EXAMPLE_CONFIG", "EXAMPLE_GENERATION", "EXAMPLE_STATE"]
+__all__ = ["write_example", "EXAMPLE_CONFIG", "EXAMPLE_GENERATION", "EXAMPLE_STATE", "TERRAIN_EXAMPLE"]
 
 _log = logging.getLogger(__name__)
 
@@ -91,7 +91,7 @@ drift = "observed"
 offset_sigma = [50e-6, 50e-6, 50e-6, 50.0, 50.0, 50.0]
 drift_sigma = [1e-6, 1e-6, 1e-6, 1.0, 1.0, 1.0]
 
-[adjust.qc]
+{terrain}[adjust.qc]
 steps = ["baarda"]
 robust_function = "danish"
 robust_scale = "mad"
@@ -101,6 +101,40 @@ baarda_sigma0 = "robust"
 
 [report]
 html = true
+"""
+
+
+#: The terrain / jitter example (``write_example(terrain=True)``, ``lunarmap run --example --terrain``): the bus
+#: jitter of the TRUTH CK (amplitude rad, frequency Hz), the simulated LOLA-like tracks over the DTM and
+#: the a-priori values of ``[[adjust.terrain.altimetry]]`` and ``[adjust.jitter]``.
+TERRAIN_EXAMPLE: dict[str, Any] = {
+    "jitter_waves": [(3e-6, 8.0)],          # LRO NAC-like: 1-3 urad at 1-10 Hz; 8 Hz is 2.7 periods of a NAC image
+    "tracks": 10, "shot_sigma_m": 0.5, "track_offset_sigma_m": 10.0, "heading_deg": 15.0,
+    "box_fraction": 0.6,                    # the tracks' box: this central share of the DTM (where the images are)
+    "interpolation_sigma_m": 1.0,           # the tie points' surface (~50 m apart) against the cratered terrain
+    # knots every 32 NAC lines (21 ms, 6 per period of 8 Hz); the smoothness sigma is the second difference of
+    # a 3 urad / 8 Hz sinusoid at that spacing (A (2 - 2 cos(2 pi f dt)) ~ 3 urad)
+    "knot_lines": 32.0, "jitter_sigma": 3e-6, "jitter_zero_sigma": 1e-5,
+}
+#: The simulated shot table of the terrain example, and its truth (per-track offsets), beside ``run.toml``.
+ALTIMETRY_TABLE = "altimetry.csv"
+ALTIMETRY_TRUTH = "altimetry_truth.json"
+
+_TERRAIN_SECTION = """[adjust.terrain]
+[[adjust.terrain.altimetry]]
+# simulated LOLA-like tracks over the DTM (lunarmap.simulate.altimetry_tracks), a radial offset per track
+path = "{table}"
+sigma = {shot_sigma_m}
+interpolation_sigma = {interpolation_sigma_m}
+offset_sigma = {track_offset_sigma_m}
+name = "lola"
+
+[adjust.jitter]
+# the TRUTH CK carries bus jitter (mission/jitter_truth.json); the NAVIGATION CK is smooth
+knot_lines = {knot_lines}
+sigma = {jitter_sigma}
+zero_sigma = {jitter_zero_sigma}
+
 """
 
 
@@ -190,7 +224,7 @@ def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = F
                   n_check: int | None = None, control_sigma: float = 0.5, sigma_px: float = 0.3,
                   names: list[str] | None = None, output: str = "run", sites: int = 1,
                   site_spacing_deg: float | None = None, site_half_width_s: float | None = None,
-                  full_size: bool = False, threads: int = 2) -> Path:
+                  full_size: bool = False, threads: int = 2, terrain: bool = False) -> Path:
     """Write the example's data and configuration (only the parts not already there); returns ``run.toml``.
 
     Parameters
@@ -222,6 +256,13 @@ def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = F
         cubes, 2.2 GB; 104 s of CPU per image (about 7 minutes on two free cores).
     threads : int
         Threads of the full-size renderer.
+    terrain : bool
+        The terrain / jitter example (:data:`TERRAIN_EXAMPLE`): the TRUTH CK carries bus attitude jitter
+        (:func:`lunarmap.simulate.block_jitter.add_block_jitter`, its truth in ``mission/jitter_truth.json``),
+        LOLA-like altimetry tracks over the DTM are written as ``altimetry.csv`` (their true per-track
+        offsets in ``altimetry_truth.json``), there are no control points (default ``n_control=0``: the
+        datum is the navigation's and the altimetry's), and ``run.toml`` has ``[[adjust.terrain.altimetry]]``
+        and ``[adjust.jitter]``. One site, not with ``full_size``.
     """
     from ..synthetic import write_block_mission
 
@@ -233,11 +274,16 @@ def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = F
         from ..errors import InvalidInputError
 
         raise InvalidInputError(f"the full-size example has one site, got sites={sites!r}")
+    if terrain and (full_size or sites != 1):
+        from ..errors import InvalidInputError
+
+        raise InvalidInputError("the terrain / jitter example is the one-site block (not full_size, sites=1)")
     layout = "full_size" if full_size else "block"
     extra: dict[str, Any] = {} if site_spacing_deg is None else {"site_spacing_deg": float(site_spacing_deg)}
     # the digest holds only the parameters given, so that the examples written before stay fresh
     mission_doc = {"seed": int(seed), "sites": int(sites), "layout": layout, **extra,
-                   **({} if site_half_width_s is None else {"site_half_width_s": float(site_half_width_s)})}
+                   **({} if site_half_width_s is None else {"site_half_width_s": float(site_half_width_s)}),
+                   **({"jitter": TERRAIN_EXAMPLE["jitter_waves"]} if terrain else {})}
     mission_digest = parts.digest(mission_doc)
     mdir = root / "mission"
     if parts.fresh("mission", mission_digest):
@@ -249,7 +295,18 @@ def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = F
         _log.info("example: writing the mission's SPICE kernels (truth and navigation) and labels in %s", mdir)
         bm = write_block_mission(mdir, seed=seed, sites=sites, site_half_width_s=site_half_width_s, layout=layout,
                                  **extra)
-        parts.done("mission", mission_digest, [mdir / f for f in _mission_files(bm)])
+        files = [mdir / f for f in _mission_files(bm)]
+        from ..simulate.block_jitter import JITTER_TRUTH, add_block_jitter
+
+        # the truth of a jitter the new TRUTH CK does not have would mislead a comparison
+        (mdir / JITTER_TRUTH).unlink(missing_ok=True)
+        if terrain:
+
+            _log.info("example: bus attitude jitter (%s) in the TRUTH CK", ", ".join(
+                f"{a * 1e6:g} urad at {f:g} Hz" for a, f in TERRAIN_EXAMPLE["jitter_waves"]))
+            add_block_jitter(bm, TERRAIN_EXAMPLE["jitter_waves"], seed=seed)
+            files.append(mdir / JITTER_TRUTH)
+        parts.done("mission", mission_digest, files)
     use = list(bm.image_names) if names is None else list(names)
     if full_size:
         points_doc = _write_full_size_images(bm, use, parts, mission_digest, threads)
@@ -257,7 +314,7 @@ def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = F
         n_check = 40 if n_check is None else n_check
     else:
         points_doc = _write_block_images(bm, use, parts, mission_digest)
-        n_control = 6 if n_control is None else n_control
+        n_control = (0 if terrain else 6) if n_control is None else n_control
         n_check = n_check if n_check is not None else (12 if quick else 20)
     points_digest = parts.digest({"mission": mission_digest, "images": points_doc, "names": use,
                                   "n_control": n_control, "n_check": n_check, "control_sigma": control_sigma,
@@ -272,7 +329,9 @@ def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = F
 
         write_network(net, root / "points.nc")
         parts.done("points", points_digest, [root / "points.nc"])
-    text = _config_text(bm, use, seed, quick, output, full_size)
+    if terrain:
+        _write_altimetry(bm, root, parts, points_doc["dtm"], seed)
+    text = _config_text(bm, use, seed, quick, output, full_size, terrain)
     path = root / "run.toml"
     config_digest = parts.digest({"text": text})
     if parts.fresh("config", config_digest):
@@ -283,6 +342,47 @@ def write_example(folder: str | os.PathLike[str], seed: int = 0, quick: bool = F
     _log.info("example %s: %d part(s) written (%s), %d reused, %.1f s", root, len(parts.written),
               ", ".join(parts.written) or "none", len(parts.reused), time.perf_counter() - t0)
     return path
+
+
+def _write_altimetry(bm: Any, root: Path, parts: _Parts, dtm_digest: str, seed: int) -> None:
+    """The terrain example's LOLA-like shot table over the true DTM, and its truth (per-track offsets)."""
+    p = TERRAIN_EXAMPLE
+    digest = parts.digest({"dtm": dtm_digest, "altimetry": {k: p[k] for k in (
+        "tracks", "shot_sigma_m", "track_offset_sigma_m", "heading_deg", "box_fraction")}, "seed": seed})
+    if parts.fresh("altimetry", digest):
+        parts.reuse("altimetry")
+        return
+    import xarray as xr
+    from scipy.interpolate import RegularGridInterpolator
+
+    from ..io.altimetry import write_altimetry
+    from ..simulate import altimetry_tracks
+    from ..simulate.mission import block_dtm_file
+
+    with xr.open_dataarray(bm.folder / block_dtm_file(bm)) as d:
+        dtm = d.load()
+    lat, lon = np.asarray(dtm["lat"].values, float), np.asarray(dtm["lon"].values, float)
+    interp = RegularGridInterpolator((lat, lon), np.asarray(dtm.values, float))
+
+    def height(lo: Any, la: Any) -> Any:        # metres above the DTM's sphere (the Moon's radius)
+        return interp(np.column_stack([np.ravel(la), np.ravel(lo)])).reshape(np.shape(lo))
+
+    f = 0.5 * p["box_fraction"]
+    c_lon, c_lat, h_lon, h_lat = 0.5 * (lon[0] + lon[-1]), 0.5 * (lat[0] + lat[-1]), lon[-1] - lon[0], lat[-1] - lat[0]
+    sim = altimetry_tracks(height, (c_lon - f * h_lon, c_lon + f * h_lon), (c_lat - f * h_lat, c_lat + f * h_lat),
+                           int(p["tracks"]), sigma=float(p["shot_sigma_m"]),
+                           offset_sigma=float(p["track_offset_sigma_m"]), heading_deg=float(p["heading_deg"]),
+                           seed=seed + 30)
+    _log.info("example: %d LOLA-like altimetry tracks (%d shots, %.2g m radial noise, per-track offsets of %.3g m "
+              "RMS) over the DTM", sim.track_names.size, sim.shots.lon.size,
+              sim.sigma, float(np.sqrt(np.mean(sim.offsets ** 2))))
+    write_altimetry(root / ALTIMETRY_TABLE, sim.shots)
+    truth = {"tracks": {str(n): {"offset_m": float(o), "drift_m_per_s": float(dr)}
+                        for n, o, dr in zip(sim.track_names, sim.offsets, sim.drifts)},
+             "shot_sigma_m": sim.sigma, "offset_sigma_m": float(p["track_offset_sigma_m"])}
+    doc = json.dumps(truth, indent=1)
+    atomic_write(root / ALTIMETRY_TRUTH, lambda tmp: tmp.write_text(doc))
+    parts.done("altimetry", digest, [root / ALTIMETRY_TABLE, root / ALTIMETRY_TRUTH])
 
 
 def _mission_files(bm: Any) -> list[str]:
@@ -367,14 +467,14 @@ def _block_points(bm: Any, use: list[str], n_control: int, n_check: int, control
         prefix = "" if n_sites == 1 else f"s{site}_"
         _log.info("example: %d control points of site %d (visible in its %d images, on the true DTM)", n_control,
                   site, len(here))
-        control = block_check_points(bm, n_control, sigma_px=sigma_px, seed=seed + 11 + extra, cameras=truth,
-                                     names=here)
+        control = (block_check_points(bm, n_control, sigma_px=sigma_px, seed=seed + 11 + extra, cameras=truth,
+                                      names=here) if n_control else None)
         _log.info("example: %d check points of site %d", n_check, site)
         check = block_check_points(bm, n_check, sigma_px=sigma_px, seed=seed + 12 + extra, cameras=truth, names=here)
-        nets += [_points_network(control, "control", f"{prefix}C", control_sigma, rng),
+        nets += [_points_network(control, "control", f"{prefix}C", control_sigma, rng) if n_control else None,
                  _points_network(check, "check", f"{prefix}K")]
     # control points first, then check points (the one-site example's order)
-    return merge_networks(*nets[0::2], *nets[1::2])
+    return merge_networks(*(n for n in nets[0::2] if n is not None), *nets[1::2])
 
 
 def _full_size_points(bm: Any, use: list[str], n_control: int, n_check: int, control_sigma: float,
@@ -418,7 +518,8 @@ def _full_size_points(bm: Any, use: list[str], n_control: int, n_check: int, con
     return merge_networks(*nets_c, *nets_k)
 
 
-def _config_text(bm: Any, use: list[str], seed: int, quick: bool, output: str, full_size: bool) -> str:
+def _config_text(bm: Any, use: list[str], seed: int, quick: bool, output: str, full_size: bool,
+                 terrain: bool = False) -> str:
     man = bm.manifest
     n_sites = bm.model.n_sites
     ext = "cub" if full_size else "nc"
@@ -444,6 +545,11 @@ def _config_text(bm: Any, use: list[str], seed: int, quick: bool, output: str, f
     # full size: a 16-s image spans enough of the orbit that its navigation errors curve (their smooth random
     # part, periods from 20 s): quadratic corrections in time (measured on the full-size example: check points
     # 4.2 m -> 3.1 m 3-D RMS, errors / posterior sigma RMS 1.84 -> 0.73)
+    if terrain:
+        name = (f"synthetic block with altimetry and jitter: 12 images, 3 orbits, NAC-like / TC-like / frame cameras, "
+                f"LOLA-like tracks, bus jitter in the true CK (seed {seed})")
     return EXAMPLE_CONFIG.format(output=output, name=name, images=images, cell=cell, degree=2 if full_size else 1,
                                  search="256.0" if full_size else "128.0",
-                                 dtm=_DTM_SECTION if n_sites == 1 else _NO_DTM)
+                                 dtm=_DTM_SECTION if n_sites == 1 else _NO_DTM,
+                                 terrain=_TERRAIN_SECTION.format(table=ALTIMETRY_TABLE, **TERRAIN_EXAMPLE)
+                                 if terrain else "")

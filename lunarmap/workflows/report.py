@@ -518,6 +518,7 @@ def write_report(result: Any, qc_truth: dict[str, Any] | None = None) -> Path:
                                for name, a in summary["altimetry"].items())
         terrain_section += ("<h2 id=\"altimetry\">Laser altimetry</h2><p>Shots observing the tie points' surface; "
                             f"{alt_groups}.</p>" + _table(ahead, arows, cls="num"))
+    terrain_section += _groups_section(summary) + _jitter_section(summary)
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>lunarmap run report</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em}}
@@ -547,3 +548,62 @@ dl{{font-size:.9em}} dt{{font-weight:bold;float:left;width:5em}} dd{{margin-left
     from ..atomic import atomic_write
 
     return atomic_write(folder / "index.html", lambda tmp: tmp.write_text(page, encoding="utf-8"))
+
+
+def _groups_section(summary: dict[str, Any]) -> str:
+    """Every observation group of the final adjustment: observations and normalised residual RMS."""
+    g = summary.get("groups") or {}
+    if len(g) < 2:
+        return ""
+    rows = [[name, int(n), f"{float(np.sqrt(q / n)):.3f}" if n else ""] for name, (q, n) in g.items()]
+    head = [("group", "image observations, control points, and each camera-level term (navigation, altimetry, "
+                      "jitter smoothness)"), ("observations", "scalar observations"),
+            ("normalised RMS", "sqrt(v'Pv / n): RMS of residual / a-priori sigma (1 if the sigmas are right; "
+                               "below 1 for groups with little redundancy)")]
+    return ("<h2 id=\"groups\">Residuals per observation group</h2>" + _table(head, rows, cls="num"))
+
+
+def _jitter_section(summary: dict[str, Any]) -> str:
+    """The adjusted jitter splines (summary ``jitter``): per image and axis, RMS, sigma and spectrum peak; a
+    figure of the amplitude spectra (with the truth's and the error's when a simulation added them)."""
+    jit = summary.get("jitter") or {}
+    if not jit:
+        return ""
+    rows = []
+    for name, r in jit.items():
+        for ax in range(3):
+            row = [name, r["axes"][ax], f"{1e6 * r['rms_rad'][ax]:.3f}", f"{1e6 * r['sigma_rms_rad'][ax]:.3f}",
+                   f"{r['peak_hz'][ax]:.2f}", f"{1e6 * r['peak_amplitude_rad'][ax]:.3f}"]
+            if "truth_rms_rad" in r:
+                row += [f"{1e6 * r['truth_rms_rad'][ax]:.3f}", f"{r['truth_peak_hz'][ax]:.2f}",
+                        f"{1e6 * r['truth_peak_amplitude_rad'][ax]:.3f}", f"{1e6 * r['error_rms_rad'][ax]:.3f}"]
+            rows.append(row)
+    head = [("image", ""), ("axis", "sensor frame"), ("RMS (urad)", "adjusted spline correction over the lines"),
+            ("sigma RMS (urad)", "its posterior sigma, RMS over the lines"),
+            ("peak (Hz)", "frequency of the largest amplitude of its spectrum"),
+            ("peak amplitude (urad)", "one-sided amplitude spectrum, mean removed")]
+    if any("truth_rms_rad" in r for r in jit.values()):
+        head += [("truth RMS (urad)", "the simulation's jitter, high-passed by the correction polynomial"),
+                 ("truth peak (Hz)", ""), ("truth peak (urad)", ""),
+                 ("error RMS (urad)", "truth minus adjusted spline (after); the truth is the error before")]
+
+    def draw(axs: Any) -> None:
+        for name, r in jit.items():
+            f = np.asarray(r["frequency_hz"])
+            for ax in range(2):          # roll and pitch: the axes tie points see (yaw moves the edges only)
+                line, = axs.plot(f, 1e6 * np.asarray(r["amplitude_rad"][ax]), lw=1.0,
+                                 label=f"{name} {r['axes'][ax]} adjusted")
+                if "truth_amplitude_rad" in r:
+                    axs.plot(f, 1e6 * np.asarray(r["truth_amplitude_rad"][ax]), lw=0.8, ls="--", color=line.get_color())
+                    axs.plot(f, 1e6 * np.asarray(r["error_amplitude_rad"][ax]), lw=0.8, ls=":", color=line.get_color())
+        axs.set_xlabel("frequency (Hz)")
+        axs.set_ylabel("amplitude (urad)")
+        axs.set_title("jitter spectra: adjusted (solid), truth before (dashed), error after (dotted)"
+                      if any("truth_amplitude_rad" in r for r in jit.values()) else "adjusted jitter spectra")
+        axs.legend(fontsize=6, ncol=2)
+
+    png = _figure(draw, 7.0, 4.2)
+    return ("<h2 id=\"jitter\">Line-scan jitter</h2><p>The adjusted attitude splines ([adjust.jitter]) per image and "
+            "sensor axis; the spectra in <code>summary.json</code> (<code>jitter</code>).</p>"
+            + _table(head, rows, cls="num")
+            + f'<img alt="jitter spectra" src="data:image/png;base64,{base64.b64encode(png).decode()}">')

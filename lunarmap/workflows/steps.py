@@ -836,11 +836,15 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
         except LunarmapError as err:
             raise _fail("adjust", "", err) from None
 
+        quad = res.result.group_quadratic_forms()
         summary: dict[str, Any] = {"sigma0": res.sigma0, "iterations": int(res.result.iterations), "converged": bool(res.converged),
                                    "message": res.result.message, "tie_sigma_scale": float(est.scale[0]) if est is not None else 1.0,
                                    "variance_factors": [h.tolist() for h in est.history] if est is not None else [], "images": list(names),
                                    "n_points": int(block.problem.n_points), "n_observations": int(block.problem.obs.n),
-                                   "groups": {k: list(v) for k, v in res.result.group_quadratic_forms().items()},
+                                   "groups": {k: list(v) for k, v in quad.items()},
+                                   # per observation group, sqrt(v'Pv / n): the RMS of residual / a-priori sigma
+                                   "group_normalized_rms": {k: float(np.sqrt(q / n)) if n else float("nan")
+                                                            for k, (q, n) in quad.items()},
                                    "rms_px": res.result.rms_px(), "solve_seconds": float(res.result.solve_seconds)}
         check_res = res
         if qc_out is not None:
@@ -858,6 +862,12 @@ def adjust_step(store: Store, key: str, names: Sequence[str], groups: Sequence[s
             summary["terrain"], terrain_ds = _terrain_outputs(block, res, qc_out, est, list(terrain or ()))
         if block.altimetry:
             summary["altimetry"] = _altimetry_outputs(block, res, qc_out, list(altimetry or ()))
+        if jspec is not None:
+            from ..evaluate.jitter import jitter_spectra
+
+            # the adjusted splines' attitude correction per image and axis: RMS, posterior sigma, spectrum
+            summary["jitter"] = jitter_spectra(block.model, res.result.cam_params, res.result.precision().cam_cov,
+                                               names)
 
         def write(folder: Path) -> None:
             geo = {"crs": MOON_GEOGRAPHIC_CRS, **attrs}
