@@ -51,21 +51,31 @@ def main(argv: list[str] | None = None) -> None:
         rec = {"part": "qc-truth", **{k: (round(v, 4) if isinstance(v, float) else v) for k, v in c.items()}}
         records.append(rec)
         print(json.dumps(rec), flush=True)
-    for c in q.get("curve_sigma", []):
-        rec = {"part": "qc-truth-sigma", **{k: (round(v, 4) if isinstance(v, float) else v) for k, v in c.items()}}
+    for c in q.get("curve_others", []):
+        rec = {"part": "qc-truth-others", **{k: (round(v, 4) if isinstance(v, float) else v) for k, v in c.items()}}
         records.append(rec)
         print(json.dumps(rec), flush=True)
+    for key, part in (("curve_sigma", "qc-truth-sigma"), ("curve_sigma_others", "qc-truth-sigma-others")):
+        for c in q.get(key, []):
+            rec = {"part": part, **{k: (round(v, 4) if isinstance(v, float) else v) for k, v in c.items()}}
+            records.append(rec)
+            print(json.dumps(rec), flush=True)
     tail = {"part": "qc-truth-summary", "sigma_px_median": round(q.get("sigma_px_median", float("nan")), 4), "removed_median_px": round(q["removed_median_px"], 3),
-            "kept_median_px": round(q["kept_median_px"], 3), "orphaned_kept": q["orphaned_kept"],
+            "kept_median_px": round(q["kept_median_px"], 3),
+            "removed_median_others_px": round(q["removed_median_others_px"], 3),
+            "kept_median_others_px": round(q["kept_median_others_px"], 3), "orphaned_kept": q["orphaned_kept"],
             "no_partner": q["no_partner"], "by_status_at_1px": q.get("by_status"),
             "cpu_s": round(time.process_time() - t0, 1)}
     records.append(tail)
     print(json.dumps(tail), flush=True)
-    print(f"{'limit':>8} {'removed':>8} {'wrong':>7} {'good':>7} {'rem.wrong':>9} {'rem.good':>8} "
+    print(f"{'limit':>14} {'removed':>8} {'wrong':>7} {'good':>7} {'rem.wrong':>9} {'rem.good':>8} "
           f"{'precision':>9} {'recall':>7} {'false/good':>10}")
-    for c in q["curve"] + q.get("curve_sigma", []):
-        lim = f"{c['limit_sigma']:g} sig" if "limit_sigma" in c else f"{c['limit_px']:g}"
-        print(f"{lim:>8} {c['removed']:8d} {c['wrong']:7d} {c['good']:7d} {c['removed_wrong']:9d} "
+    rows = [("nearest", c) for c in q["curve"] + q.get("curve_sigma", [])] + \
+        [("others", c) for c in q.get("curve_others", []) + q.get("curve_sigma_others", [])]
+    for how, c in rows:
+        lim = (f"{c['limit_sigma']:g} sig" if "limit_sigma" in c else f"{c['limit_px']:g}") + \
+            (" (others)" if how == "others" else "")
+        print(f"{lim:>14} {c['removed']:8d} {c['wrong']:7d} {c['good']:7d} {c['removed_wrong']:9d} "
               f"{c['removed_good']:8d} {c['precision']:9.3f} {c['recall']:7.3f} {100 * c['false_removal_share']:9.2f}%")
     if args.json:
         args.json.write_text("\n".join(json.dumps(r) for r in records) + "\n")

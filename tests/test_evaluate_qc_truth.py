@@ -55,6 +55,21 @@ def test_true_errors_find_the_injected_rays_and_their_displacement(case):
     assert np.all(err[good] < 0.5)
 
 
+def test_strict_true_errors_leave_each_ray_out_of_its_point(case):
+    """method="others": the point from the other rays. A displaced ray's error is still its displacement (its
+    partners are right); the rays of points without a displaced one stay within the noise; the good rays of a
+    point with a displaced one may be moved by it (not asserted: the documented strictness)."""
+    err = true_tie_errors(case["xy"], case["image"], case["point"], case["truth"], case["names"], case["dtm"],
+                          method="others")
+    np.testing.assert_allclose(err[case["bad"]], case["shift"][case["bad"]], atol=0.5)
+    dirty = np.isin(case["point"], case["point"][np.r_[case["bad"], case["bad2"]]])
+    assert np.all(err[~dirty] < 0.5)
+    assert np.all(err[case["bad2"]] > 1.0)             # the 2-ray point: each ray's only partner
+    with pytest.raises(EvaluationInputError, match="method"):
+        true_tie_errors(case["xy"], case["image"], case["point"], case["truth"], case["names"], case["dtm"],
+                        method="mean")
+
+
 def test_removal_scores_count_what_the_sets_say(case):
     err = true_tie_errors(case["xy"], case["image"], case["point"], case["truth"], case["names"], case["dtm"])
     n = err.size
@@ -102,6 +117,9 @@ def test_qc_against_truth_reads_a_runs_residuals(case):
     assert q["by_status"]["withdrawn"] == {"observations": 1, "wrong": 1}
     assert q["sigma_px_median"] == pytest.approx(0.05)
     assert {c["limit_sigma"] for c in q["curve_sigma"]} == {2.0, 3.0, 4.0, 5.0}
+    # the strict measure finds the same displaced rays (and may add good rays of their points)
+    strict = {c["limit_px"]: c for c in q["curve_others"]}
+    assert strict[1.0]["removed_wrong"] == 26 and strict[1.0]["wrong"] >= wrong.size
 
 
 def test_bad_input_is_named(case):

@@ -25,6 +25,9 @@ from ..errors import EvaluationInputError
 
 __all__ = ["QC_TRUTH_LIMITS_PX", "QC_TRUTH_LIMITS_SIGMA", "qc_against_truth", "removal_scores", "true_tie_errors"]
 
+#: Smallest convergence of a point's other rays for the "others" true error, degrees.
+_MIN_CONVERGENCE_DEG = 2.0
+
 #: Thresholds (multiples of an observation's sigma) of the curve in sigmas.
 QC_TRUTH_LIMITS_SIGMA = (2.0, 3.0, 4.0, 5.0)
 
@@ -33,8 +36,16 @@ QC_TRUTH_LIMITS_PX = (0.5, 1.0, 2.0, 3.0, 5.0, 10.0)
 
 
 def true_tie_errors(observed: ArrayLike, image: ArrayLike, point: ArrayLike, truth: Mapping[str, Any],
-                    names: Sequence[str], dtm: xr.DataArray) -> np.ndarray:
+                    names: Sequence[str], dtm: xr.DataArray, method: str = "nearest") -> np.ndarray:
     """True error of every tie observation: its distance from the true conjugates of its point's other rays.
+
+    ``method="nearest"``: the smallest distance over the other rays, each cast onto the true DTM (module
+    docstring); lenient: a ray that agrees with one partner is right even where the point's rays disagree
+    among themselves. ``method="others"``: the distance from the projection of the point intersected
+    (least squares, truth cameras) from all its *other* rays (one other ray, or other rays converging by less
+    than 2 degrees: the "nearest" error); strict: a
+    wrong ray among the others moves that point, so the good rays of a point with a wrong ray can count as
+    wrong too.
 
     Parameters
     ----------
@@ -50,6 +61,8 @@ def true_tie_errors(observed: ArrayLike, image: ArrayLike, point: ArrayLike, tru
         Image names, in the order of ``image``'s indices.
     dtm : xarray.DataArray
         The true DTM (heights in metres above the reference sphere, dims ``lat`` x ``lon``, degrees).
+    method : {"nearest", "others"}
+        How the true conjugate is found (above).
 
     Returns
     -------
@@ -60,9 +73,13 @@ def true_tie_errors(observed: ArrayLike, image: ArrayLike, point: ArrayLike, tru
     Raises
     ------
     EvaluationInputError
-        Arrays of different lengths, an image index outside ``names``, or an image without a truth camera.
+        Arrays of different lengths, an image index outside ``names``, an image without a truth camera, or
+        an unknown ``method``.
     """
     from ..camera.intersect import DtmSampler
+
+    if method not in ("nearest", "others"):
+        raise EvaluationInputError(f"method must be 'nearest' or 'others', got {method!r}")
 
     obs = np.asarray(observed, float)
     img = np.asarray(image, np.int64)
@@ -103,6 +120,43 @@ def true_tie_errors(observed: ArrayLike, image: ArrayLike, point: ArrayLike, tru
                 li, sa = truth[names[i]].ground_to_image(ground[b[m]], within_image=False)
                 d[m] = np.hypot(li - obs[a[m], 0], sa - obs[a[m], 1])
         np.minimum.at(err, a, np.where(np.isfinite(d), d, np.inf))
+    if method == "others":
+        err = _leave_one_out_errors(obs, img, pt, truth, names, err)
+    return err
+
+
+def _leave_one_out_errors(obs: np.ndarray, img: np.ndarray, pt: np.ndarray, truth: Mapping[str, Any],
+                          names: Sequence[str], nearest: np.ndarray) -> np.ndarray:
+    """Distance of every observation from the projection of its point intersected from its other rays."""
+    n = img.size
+    O, D = np.zeros((n, 3)), np.zeros((n, 3))
+    for i in np.unique(img):
+        m = img == i
+        o, d = truth[names[i]].rays(obs[m, 0], obs[m, 1])
+        O[m], D[m] = o, d / np.linalg.norm(d, axis=1, keepdims=True)
+    # least squares over rays: sum of (I - d d^T) X = sum of (I - d d^T) o, the point's sums less the ray's own
+    P = np.eye(3)[None] - D[:, :, None] * D[:, None, :]
+    q = np.einsum("nij,nj->ni", P, O)
+    _, inv, count = np.unique(pt, return_inverse=True, return_counts=True)
+    A, b = np.zeros((count.size, 3, 3)), np.zeros((count.size, 3))
+    np.add.at(A, inv, P)
+    np.add.at(b, inv, q)
+    A_o, b_o = A[inv] - P, b[inv] - q
+    # two or more other rays that converge by >= _MIN_CONVERGENCE_DEG (the smallest eigenvalue of the sum of
+    # projectors is 1 - cos(angle) for two rays): near-parallel rays (two cameras side by side) place the
+    # point far along the ray and project a noise of hundredths of a pixel into pixels; those keep "nearest"
+    many = count[inv] >= 3
+    lam = np.linalg.eigvalsh(np.where(many[:, None, None], A_o, np.eye(3)[None]))[:, 0]
+    ok = many & (lam >= 1.0 - np.cos(np.radians(_MIN_CONVERGENCE_DEG)))
+    err = nearest.copy()
+    if ok.any():
+        X = np.linalg.solve(A_o[ok], b_o[ok][..., None])[..., 0]
+        d = np.full(int(ok.sum()), np.inf)
+        for i in np.unique(img[ok]):
+            m = img[ok] == i
+            li, sa = truth[names[i]].ground_to_image(X[m], within_image=False)
+            d[m] = np.hypot(li - obs[ok][m, 0], sa - obs[ok][m, 1])
+        err[ok] = d
     return err
 
 
@@ -179,8 +233,10 @@ def qc_against_truth(residuals: xr.Dataset, truth: Mapping[str, Any], names: Seq
         ``removed_median_px`` and ``kept_median_px`` (true errors), ``limit_px``, ``curve`` (the same
         figures at every limit of ``limits_px``, :func:`removal_scores`), ``curve_sigma`` (at ``limits_sigma`` times each
         observation's sigma, from ``residual`` / ``normalized`` when ``residuals`` has them; the entries'
-        ``limit_px`` is then the limit in sigmas, ``limit_sigma``) and ``sigma_px_median``, ``by_status`` (observations and
-        wrong ones per final QC status, when ``residuals`` has ``qc_status``), ``orphaned_kept`` (kept observations
+        ``limit_px`` is then the limit in sigmas, ``limit_sigma``; ``curve_sigma_others`` with the
+        strict true error) and ``sigma_px_median``, ``by_status`` (observations and
+        wrong ones per final QC status, when ``residuals`` has ``qc_status``), ``curve_others``, ``removed_median_others_px`` and ``kept_median_others_px`` (the same with
+        the strict true error, ``method="others"`` of :func:`true_tie_errors`), ``orphaned_kept`` (kept observations
         left alone on their point by the removals: they no longer take part) and ``no_partner`` (observations
         whose point has no other ray to judge them by, counted as wrong).
     """
@@ -202,6 +258,11 @@ def qc_against_truth(residuals: xr.Dataset, truth: Mapping[str, Any], names: Seq
         "curve": removal_scores(err, removed, limits_px),
         "orphaned_kept": int(orphaned.sum()), "no_partner": int(np.sum(~fin)),
     }
+    # the strict measure of what is wrong (the point from all other rays), for the same curve
+    strict = true_tie_errors(obs, img, pt, truth, names, dtm, method="others")
+    out["curve_others"] = removal_scores(strict, removed, limits_px)
+    out["removed_median_others_px"] = float(np.median(strict[removed])) if removed.any() else float("nan")
+    out["kept_median_others_px"] = float(np.median(strict[~removed])) if (~removed).any() else float("nan")
     if "residual" in residuals and "normalized" in residuals:
         # the sigma the final adjustment weighted each observation with (residual / normalized residual),
         # for the curve in sigmas; the true error also holds the partner ray's noise, so k sigma over-counts
@@ -213,6 +274,8 @@ def qc_against_truth(residuals: xr.Dataset, truth: Mapping[str, Any], names: Seq
             out["sigma_px_median"] = float(np.median(sig))
             out["curve_sigma"] = [{**removal_scores(err / sig, removed, [k])[0], "limit_sigma": k}
                                   for k in limits_sigma]
+            out["curve_sigma_others"] = [{**removal_scores(strict / sig, removed, [k])[0], "limit_sigma": k}
+                                         for k in limits_sigma]
     if "qc_status" in residuals:
         # removed (a failing test of its own) vs withdrawn (with a point no test could single a ray out of)
         status = residuals["qc_status"].values.astype(str)[tie]
