@@ -129,11 +129,13 @@ class DemoReport:
                 f"{_ratio(q['removed_wrong'], q['wrong'])}, false removals {_share(q.get('removed_good'), q.get('good'))} "
                 f"of the good; true error of the removed median {q['removed_median_px']:.2f} px, of the kept "
                 f"{q['kept_median_px']:.2f} px")
-        for c in q.get("curve_sigma", []):
-            if c.get("limit_sigma") == 3.0:
-                text += (f"; wrong = > 3 sigma ({3 * q['sigma_px_median']:.2f} px at the median sigma): precision "
-                         f"{_ratio(c['removed_wrong'], c['removed'])}, recall {_ratio(c['removed_wrong'], c['wrong'])}, "
-                         f"false removals {_share(c['removed_good'], c['good'])} of the good")
+        for key, how in (("curve_sigma", "nearest conjugate"), ("curve_sigma_others", "point of the other rays")):
+            for c in q.get(key, []):
+                if c.get("limit_sigma") == 3.0:
+                    text += (f"; wrong = > 3 sigma ({3 * q['sigma_px_median']:.2f} px at the median sigma) from the "
+                             f"{how}: precision {_ratio(c['removed_wrong'], c['removed'])}, recall "
+                             f"{_ratio(c['removed_wrong'], c['wrong'])}, false removals "
+                             f"{_share(c['removed_good'], c['good'])} of the good")
         return text
 
 
