@@ -129,3 +129,14 @@ def test_bad_input_is_named(case):
         true_tie_errors(case["xy"], case["image"] + 100, case["point"], case["truth"], case["names"], case["dtm"])
     with pytest.raises(EvaluationInputError, match="NaN"):
         removal_scores([np.nan, 1.0], [True, False])
+
+
+def test_the_reports_verdict_gives_the_false_removal_share():
+    from lunarmap.workflows.report import verdict
+
+    # 40 removed, none wrong, of 1,000 good: the share is 40 / 1,000 (counted here, not by the code)
+    q = {**removal_scores(np.full(1000, 0.1), np.r_[np.ones(40, bool), np.zeros(960, bool)], [1.0])[0],
+         "removed_median_px": 0.1, "kept_median_px": 0.1}
+    summary = {"sigma0": 1.0, "qc": {"image_observations_removed": 40, "image_observations": 1000}}
+    text = [t for _, t in verdict(summary, None, q) if t.startswith("quality control removed")][0]
+    assert "40 good observations removed = 4.0 % of the 1,000 good" in text
