@@ -14,6 +14,8 @@ Parts (``--part``, several allowed):
   solve on the shared generator's blocks (500, 2,000, 4,000 images), the column-solve method it
   replaces (``--old``), w-tests of every observation, and a full QC run (robust + data snooping)
   with injected gross errors vs one plain solve, all ratios within one run;
+* ``qc-cost`` -- that full QC run vs plain solves of the same dirty block in CPU time, alternating in one
+  process (``--repeat`` QC runs, each between two plain solves);
 * ``mismatches`` -- the synthetic block mission (rendered images, tie points from the matcher,
   check points measured at 0.3 px): check-point errors of the clean adjustment vs quality-controlled
   adjustments with 20 % and 50 % of the tie-point observations displaced by 4-40 px;
@@ -26,6 +28,7 @@ average with any timing (printed).
 
     python bench/bench_qc.py --part blunders variance offsets --draws 20
     python bench/bench_qc.py --part scale --sizes medium large1m xl4000 [--old]
+    python bench/bench_qc.py --part qc-cost --sizes large1m --repeat 1
     python bench/bench_qc.py --part mismatches
     python bench/bench_qc.py --part misses --draw-list 8 13 --steps sequent baarda
 """
@@ -94,7 +97,7 @@ def part_blunders(draws: int) -> None:
             table[name].append(s)
             emit("blunders", draw=d, strategy=name, **s)
     for name, rows in table.items():
-        def dist(key):
+        def dist(key, rows=rows):
             v = np.array([r[key] for r in rows], float)
             return f"{v.min():.0f}/{np.median(v):.0f}/{v.max():.0f}"
         emit("blunders-summary", strategy=name, draws=len(rows),
@@ -338,6 +341,60 @@ def part_scale(sizes: list[str], old: bool, qc_sizes: list[str]) -> None:
         subprocess.run(cmd, check=True)
 
 
+def part_qc_cost(size: str, repeat: int, bal: str | None = None) -> None:
+    """Full QC (robust + Baarda) vs a plain solve of the same dirty block, CPU time, runs alternating in one
+    process (plain, QC, plain, QC, ..., plain): each QC run is compared with the mean of the plain solves
+    either side of it, so a load that changes during the measurement moves both alike. CPU time of the
+    process (every thread: BLAS and the solver's), not wall time: the machine is shared at nice 19."""
+    from lunarmap.adjust import SolverOptions, bal_to_problem, read_bal, solve
+    from lunarmap.adjust.qc import QCOptions, quality_control
+
+    data = read_bal(bal or ensure_data(size))
+    pb = bal_to_problem(data, sigma_px=0.3)
+    # the errors of part scale-one: 0.1 % of the observations displaced by 5-50 pixels
+    rng = np.random.default_rng(7)
+    bad = rng.choice(pb.obs.n, pb.obs.n // 1000, replace=False)
+    ang = rng.uniform(0, 2 * np.pi, bad.size)
+    xy = pb.obs.xy.copy()
+    xy[bad] += rng.uniform(5, 50, bad.size)[:, None] * np.column_stack([np.cos(ang), np.sin(ang)])
+    base = dict(size=size, images=pb.n_images, points=pb.n_points, observations=pb.obs.n, blunders=int(bad.size))
+
+    def dirty():
+        d = bal_to_problem(data, sigma_px=0.3)
+        d.obs.xy = xy.copy()
+        return d
+
+    def plain_run(k: int) -> float:
+        d = dirty()
+        c0, w0 = time.process_time(), time.perf_counter()
+        r = solve(d, SolverOptions())
+        c, w = time.process_time() - c0, time.perf_counter() - w0
+        emit("qc-cost", run="plain", k=k, cpu_s=round(c, 2), wall_s=round(w, 2), iterations=r.iterations,
+             sigma0=round(r.sigma0, 4), load=load(), **base)
+        return c
+
+    def qc_run(k: int) -> float:
+        d = dirty()
+        c0, w0 = time.process_time(), time.perf_counter()
+        qc = quality_control(d, ("robust", "baarda"), options=QCOptions(
+            units_per_km=1.0, baarda=dict(per_round="point", limit=5.0)))
+        c, w = time.process_time() - c0, time.perf_counter() - w0
+        out = set(qc.removed_image_observations.tolist())
+        emit("qc-cost", run="qc", k=k, cpu_s=round(c, 2), wall_s=round(w, 2), found=len(out & set(bad.tolist())),
+             false=len(out - set(bad.tolist())), baarda_rounds=qc.report.summary.get("baarda_rounds"),
+             sigma0=round(qc.result.sigma0, 4), clean=qc.report.clean, load=load(), **base)
+        return c
+
+    plain = [plain_run(0)]
+    ratios = []
+    for k in range(repeat):
+        q = qc_run(k)
+        plain.append(plain_run(k + 1))
+        ratios.append(q / (0.5 * (plain[-2] + plain[-1])))
+    emit("qc-cost-summary", qc_over_plain_cpu=[round(r, 3) for r in ratios],
+         median=round(float(np.median(ratios)), 3), plain_cpu_s=[round(p, 2) for p in plain], **base)
+
+
 # --- tie points from the matcher with mismatches --------------------------------------------------------
 
 MISMATCH_VARIANTS = {
@@ -353,10 +410,10 @@ def part_mismatches(seed: int, fractions: list[float], variants=MISMATCH_VARIANT
     import lunarmap
     from lunarmap.adjust import NavigationSpec, SolverOptions, merge_networks, network_from_tiepoints
     from lunarmap.adjust.qc import QCOptions, block_result, quality_control
-    from lunarmap.workflows.example import _points_network as _network_of
     from lunarmap.matching import DetectParams, MatchParams, TiePointParams
     from lunarmap.simulate import block_cameras, block_check_points, render_block
     from lunarmap.synthetic import write_block_mission
+    from lunarmap.workflows.example import _points_network as _network_of
 
     tmp = tempfile.mkdtemp(prefix="qc_mismatch_")
     t0 = time.perf_counter()
@@ -435,7 +492,8 @@ def part_mismatches(seed: int, fractions: list[float], variants=MISMATCH_VARIANT
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--part", nargs="+", default=["blunders", "variance", "offsets"],
-                    choices=["blunders", "variance", "offsets", "scale", "scale-one", "mismatches", "misses", "clean"])
+                    choices=["blunders", "variance", "offsets", "scale", "scale-one", "qc-cost", "mismatches", "misses",
+                             "clean"])
     ap.add_argument("--draws", type=int, default=20)
     ap.add_argument("--draw-list", type=int, nargs="*", help="(misses) these draws instead of range(--draws)")
     ap.add_argument("--steps", nargs="+", default=["baarda"], help="(misses, clean) the QC steps run")
@@ -443,6 +501,8 @@ def main(argv=None):
     ap.add_argument("--old", action="store_true", help="also time the column-solve precision (slow at 4,000 images)")
     ap.add_argument("--qc", action="store_true", help="(scale-one) also time a full QC run")
     ap.add_argument("--qc-sizes", nargs="*", default=["large1m"], help="sizes with a full QC run timed")
+    ap.add_argument("--repeat", type=int, default=1, help="(qc-cost) QC runs, each between two plain solves")
+    ap.add_argument("--bal", help="(qc-cost) this BAL file instead of the size's generated block")
     ap.add_argument("--fractions", nargs="+", type=float, default=[0.2, 0.5])
     ap.add_argument("--variants", nargs="+", choices=sorted(MISMATCH_VARIANTS), default=["paper", "run"],
                     help="mismatch part: QC settings of the paper's simulation and/or of `lunarmap run`")
@@ -464,6 +524,8 @@ def main(argv=None):
             part_scale(args.sizes, args.old, args.qc_sizes)
         elif part == "scale-one":
             part_scale_one(args.sizes[0], args.old, args.qc)
+        elif part == "qc-cost":
+            part_qc_cost(args.sizes[0], args.repeat, args.bal)
         elif part == "mismatches":
             part_mismatches(args.seed, args.fractions, [v for k in args.variants for v in MISMATCH_VARIANTS[k]])
     if args.json:

@@ -151,91 +151,30 @@ class DemoReport:
                 "(variance-component estimation; 1 if the sigmas are right)")
 
     def qc_truth_text(self) -> str:
-        """QC's removals against the simulation's true conjugates (precision and recall)."""
+        """QC's removals against the simulation's true conjugates (precision, recall, false removals)."""
         q = self.qc_truth
-        return (f"QC vs truth: {q['removed']} of {q['observations']} tie observations removed, "
+        text = (f"QC vs truth: {q['removed']} of {q['observations']} tie observations removed, "
                 f"{q['removed_wrong']} of them true mismatches (> {q['limit_px']:g} px from the true conjugate); "
                 f"{q['wrong']} true mismatches in all: precision {_ratio(q['removed_wrong'], q['removed'])}, recall "
-                f"{_ratio(q['removed_wrong'], q['wrong'])}; true error of the removed median "
-                f"{q['removed_median_px']:.2f} px, of the kept {q['kept_median_px']:.2f} px")
+                f"{_ratio(q['removed_wrong'], q['wrong'])}, false removals {_share(q.get('removed_good'), q.get('good'))} "
+                f"of the good; true error of the removed median {q['removed_median_px']:.2f} px, of the kept "
+                f"{q['kept_median_px']:.2f} px")
+        for key, how in (("curve_sigma", "nearest conjugate"), ("curve_sigma_others", "point of the other rays")):
+            for c in q.get(key, []):
+                if c.get("limit_sigma") == 3.0:
+                    text += (f"; wrong = > 3 sigma ({3 * q['sigma_px_median']:.2f} px at the median sigma) from the "
+                             f"{how}: precision {_ratio(c['removed_wrong'], c['removed'])}, recall "
+                             f"{_ratio(c['removed_wrong'], c['wrong'])}, false removals "
+                             f"{_share(c['removed_good'], c['good'])} of the good")
+        return text
+
+
+def _share(a: int | None, b: int | None) -> str:
+    return f"{100.0 * a / b:.1f} %" if a is not None and b else "n/a"
 
 
 def _ratio(a: int, b: int) -> str:
     return f"{a / b:.2f}" if b else "n/a (none)"
-
-
-def qc_against_truth(residuals: xr.Dataset, truth: dict[str, Any], names: list[str], dtm: xr.DataArray,
-                     limit_px: float = 1.0) -> dict[str, Any]:
-    """The tie observations quality control removed, against the simulation's true conjugates.
-
-    An observation's true error is its distance from the true conjugate of its point's other rays: each
-    ray is cast through the truth camera onto the true DTM and the ground point projected into the
-    observation's image through its truth camera; the error is the smallest over the other rays (a ray
-    with at least one right partner is right). A **true mismatch** is an observation more than
-    ``limit_px`` from every other ray's conjugate (both rays of a wrong 2-ray point).
-
-    Parameters
-    ----------
-    residuals : xarray.Dataset
-        The run's ``outputs/adjustment/residuals.nc`` (``observed``, ``image``, ``point``, ``point_type``,
-        ``qc_removed``).
-    truth : dict image name -> SensorModel
-        The truth cameras.
-    names : list of str
-        Image names in the order of ``residuals['image']``.
-    dtm : xarray.DataArray
-        The true DTM (``lat`` x ``lon``).
-    limit_px : float
-
-    Returns
-    -------
-    dict
-        ``observations``, ``removed``, ``wrong``, ``removed_wrong`` (counts of tie observations),
-        ``precision``, ``recall``, ``removed_median_px``, ``kept_median_px``, ``limit_px``.
-    """
-    from .camera.intersect import DtmSampler
-
-    sampler = DtmSampler(dtm)
-    tie = residuals["point_type"].values.astype(str) == "tie"
-    obs = np.asarray(residuals["observed"].values, float)[tie]
-    img = residuals["image"].values[tie]
-    pt = residuals["point"].values[tie]
-    removed = residuals["qc_removed"].values.astype(bool)[tie] if "qc_removed" in residuals else np.zeros(tie.sum(), bool)
-    ground = np.full((img.size, 3), np.nan)
-    for i, n in enumerate(names):
-        m = img == i
-        if m.any():
-            ground[m] = truth[n].image_to_ground(obs[m, 0], obs[m, 1], dtm=sampler, on_miss="nan")
-    order = np.argsort(pt, kind="stable")
-    starts = np.flatnonzero(np.r_[True, np.diff(pt[order]) != 0])
-    ends = np.r_[starts[1:], order.size]
-    a_list, b_list = [], []
-    for s0, e0 in zip(starts, ends):
-        idx = order[s0:e0]
-        if idx.size > 1:
-            a, b = np.meshgrid(idx, idx, indexing="ij")
-            off = a != b
-            a_list.append(a[off])
-            b_list.append(b[off])
-    err = np.full(img.size, np.inf)
-    if a_list:
-        a, b = np.concatenate(a_list), np.concatenate(b_list)
-        d = np.full(a.size, np.inf)
-        for i, n in enumerate(names):
-            m = (img[a] == i) & np.all(np.isfinite(ground[b]), axis=1)
-            if m.any():
-                li, sa = truth[n].ground_to_image(ground[b[m]], within_image=False)
-                d[m] = np.hypot(li - obs[a[m], 0], sa - obs[a[m], 1])
-        np.minimum.at(err, a, np.where(np.isfinite(d), d, np.inf))
-    wrong = err > limit_px
-    fin = np.isfinite(err)
-    return {"observations": int(img.size), "removed": int(removed.sum()), "wrong": int(wrong.sum()),
-            "removed_wrong": int((removed & wrong).sum()),
-            "precision": float((removed & wrong).sum() / removed.sum()) if removed.any() else float("nan"),
-            "recall": float((removed & wrong).sum() / wrong.sum()) if wrong.any() else float("nan"),
-            "removed_median_px": float(np.median(err[removed & fin])) if (removed & fin).any() else float("nan"),
-            "kept_median_px": float(np.median(err[~removed & fin])) if (~removed & fin).any() else float("nan"),
-            "limit_px": float(limit_px)}
 
 
 def _grid(cam: Any, n: int = 9) -> tuple[np.ndarray, np.ndarray]:
@@ -270,6 +209,7 @@ def run_demo(output: str | os.PathLike[str] = "demo_output", seed: int = 0, quic
     import lunarmap
 
     from .camera.factory import camera_from_isd_file
+    from .evaluate.qc_truth import qc_against_truth
     from .rpc import read_netcdf
     from .simulate import block_cameras
     from .synthetic import open_block_mission

@@ -122,6 +122,46 @@ def test_a_block_without_redundancy_is_flagged(qc_run):
     assert assess(no_redundancy, {}, 4.0) == ["no redundancy left (r = 0): nothing could be tested"]
 
 
+@pytest.fixture(scope="module")
+def resection_block():
+    """A real block with no redundancy: one image and three fixed control points, 6 observations for the
+    image's 6 unknowns (the space resection, exactly determined)."""
+    from blockhelp import frame_case
+
+    from lunarmap.adjust import BundleProblem, ImageObservations, PointPriors, SensorImageModel
+
+    pb = frame_case(orbits=2, per_orbit=5, points=120, n_control=4, seed=4).problem
+    o = pb.obs
+    pts = o.pt_idx[o.cam_idx == 0][:3]
+    m = (o.cam_idx == 0) & np.isin(o.pt_idx, pts)
+    remap = np.zeros(pb.n_points, np.int64)
+    remap[pts] = np.arange(3)
+    X = pb.points[pts].copy()
+    return BundleProblem(SensorImageModel(pb.model.sensors[:1]), pb.cam_params[:1].copy(), X,
+                         ImageObservations(o.cam_idx[m], remap[o.pt_idx[m]], o.xy[m], 0.3),
+                         priors=PointPriors(np.arange(3), X.copy(), np.zeros((3, 3))))
+
+
+@pytest.mark.parametrize("steps", [("baarda",), ("sequent", "baarda"), ("robust", "baarda"), ("robust",)])
+def test_quality_control_of_a_real_block_without_redundancy_is_flagged(resection_block, steps):
+    """Issue 27's bad input "a block with no redundancy", end to end: the block is accepted (as many
+    observations as unknowns), every QC step sequence ends with a QualityControlWarning and the flag, nothing
+    removed (nothing can be tested), no exception."""
+    assert solve(resection_block, OPTS).redundancy == 0          # the oracle: 6 observations, 6 unknowns
+    with pytest.warns(QualityControlWarning, match="no redundancy"):
+        qc = quality_control(resection_block, steps, options=QCOptions(solver=OPTS))
+    assert not qc.report.clean
+    assert "no redundancy left (r = 0): nothing could be tested" in qc.report.summary["flags"]
+    assert qc.removed_image_observations.size == 0
+
+
+def test_variance_components_of_a_block_without_redundancy_are_a_named_error(resection_block):
+    from lunarmap.errors import VarianceComponentError
+
+    with pytest.raises(VarianceComponentError, match="redundancy"):
+        quality_control(resection_block, ("variance",), options=QCOptions(solver=OPTS))
+
+
 def test_a_point_behind_its_cameras_from_every_start_is_set_aside_not_fatal():
     sim = dlr_block(seed=1, example="blunders")
     pb = dlr_problem(sim)

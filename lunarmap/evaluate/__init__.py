@@ -9,6 +9,8 @@
 * :mod:`.theory` -- the study's Eq. 15 (precision of a symmetric convergent pair) and the matching
   error as a linear function of the convergence angle, fitted from simulation;
 * :mod:`.combinations` -- all k-image combinations of a site and the progressive selection, on dask;
+* :mod:`.qc_truth` -- quality control's removals against a simulation's truth cameras and DTM (true error
+  of every tie observation; precision, recall and false removals at several thresholds);
 * :mod:`.plots` -- the study's figures with matplotlib (optional dependency).
 
 The layering is ``... -> adjust -> evaluate``: evaluate uses the adjustment, never the reverse.
@@ -54,6 +56,7 @@ from .plots import (
                           power_law_fit,
                           save_figure,
 )
+from .qc_truth import QC_TRUTH_LIMITS_PX, QC_TRUTH_LIMITS_SIGMA, qc_against_truth, removal_scores, true_tie_errors
 from .theory import (
                           NAC_MATCHING_ERROR,
                           MatchingErrorModel,
@@ -75,4 +78,5 @@ __all__ = [
     "pair_precision",
     "plot_error_vs_convergence", "plot_matching_error", "plot_precision_vs_convergence", "plot_pair_quantity",
     "plot_precision_vs_images", "plot_footprints", "save_figure", "power_law_fit",
+    "QC_TRUTH_LIMITS_PX", "QC_TRUTH_LIMITS_SIGMA", "true_tie_errors", "removal_scores", "qc_against_truth",
 ]

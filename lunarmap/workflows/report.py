@@ -79,7 +79,7 @@ def verdict(summary: dict[str, Any], residuals: xr.Dataset | None = None,
     residuals : xarray.Dataset, optional
         ``outputs/adjustment/residuals.nc`` (observations per image).
     qc_truth : dict, optional
-        Quality control against a simulation's truth (:func:`lunarmap.demo.qc_against_truth`).
+        Quality control against a simulation's truth (:func:`lunarmap.evaluate.qc_truth.qc_against_truth`).
     min_observations : int
         Images with fewer image observations left are named.
 
@@ -125,6 +125,9 @@ def verdict(summary: dict[str, Any], residuals: xr.Dataset | None = None,
                      + (f"{rec:.2f}" if t["wrong"] else "n/a: the block has none, so every removal was of a good "
                         "observation") + f"); true error of the removed median {t['removed_median_px']:.2f} px, of "
                      f"the kept {t['kept_median_px']:.2f} px")
+            if t.get("good"):
+                text += (f"; {t.get('removed_good', t['removed'] - t['removed_wrong']):,} good observations removed "
+                         f"= {100.0 * t.get('removed_good', 0) / t['good']:.1f} % of the {t['good']:,} good")
             out.append(("warn" if t["removed"] and prec < 0.5 else "ok", text + "."))
         else:
             out.append(("info", text + " (how many were wrong is known only where the truth is, e.g. the example)."))
@@ -238,7 +241,7 @@ def write_report(result: Any, qc_truth: dict[str, Any] | None = None) -> Path:
     ----------
     result : lunarmap.workflows.RunResult
     qc_truth : dict, optional
-        Quality control against a simulation's truth (:func:`lunarmap.demo.qc_against_truth`), for the
+        Quality control against a simulation's truth (:func:`lunarmap.evaluate.qc_truth.qc_against_truth`), for the
         verdict.
 
     Returns
