@@ -402,8 +402,7 @@ def terrain_against_truth(result: Any, bm: Any, nav: dict[str, Any], example: Pa
 def _reference_adjustment(result: Any) -> dict[str, Any] | None:
     """The run's block adjusted without altimetry and jitter (its tie points, points, navigation and QC):
     the adjustment step's summary, stored in ``<run>/reference``."""
-    from dataclasses import asdict
-
+    from .workflows.engine import navigation_args, qc_args
     from .workflows.steps import Done, adjust_step
     from .workflows.store import Store
 
@@ -411,15 +410,8 @@ def _reference_adjustment(result: Any) -> dict[str, Any] | None:
     names = [im.name for im in cfg.images]
     isds = [Done("isd", "", n, str(result.outputs["isd"] / f"{n}.json"), False) for n in names]
     ties = Done("tiepoints", "", "", str(result.outputs["tiepoints"]), False)
-    nav = None
-    if cfg.navigation is not None:
-        n = cfg.navigation
-        nav = {"position_sigma": n.position_sigma, "attitude_sigma": n.attitude_sigma,
-               "position_rate_sigma": n.position_rate_sigma, "attitude_rate_sigma": n.attitude_rate_sigma,
-               "offset": n.offset, "drift": n.drift,
-               "offset_sigma": list(n.offset_sigma) if n.offset_sigma else None,
-               "drift_sigma": list(n.drift_sigma) if n.drift_sigma else None}
-    qc = None if cfg.qc is None or not cfg.qc.steps else {**asdict(cfg.qc), "steps": list(cfg.qc.steps)}
+    nav = navigation_args(cfg)
+    qc = qc_args(cfg)
     store = Store(result.folder / "reference")
     import hashlib
 

@@ -210,6 +210,23 @@ def _call(fn: Callable[..., Any], *args: Any) -> Any:
         return fn(*(a.value if isinstance(a, _Value) else a for a in args))
 
 
+def navigation_args(cfg: RunConfig) -> dict[str, Any] | None:
+    """The adjust step's navigation argument of a configuration (plain values: part of its store key)."""
+    if cfg.navigation is None:
+        return None
+    n = cfg.navigation
+    return {"position_sigma": n.position_sigma, "attitude_sigma": n.attitude_sigma,
+            "position_rate_sigma": n.position_rate_sigma, "attitude_rate_sigma": n.attitude_rate_sigma,
+            "offset": n.offset, "drift": n.drift,
+            "offset_sigma": list(n.offset_sigma) if n.offset_sigma else None,
+            "drift_sigma": list(n.drift_sigma) if n.drift_sigma else None}
+
+
+def qc_args(cfg: RunConfig) -> dict[str, Any] | None:
+    """The adjust step's quality-control argument of a configuration (None without QC steps)."""
+    return None if cfg.qc is None or not cfg.qc.steps else {**asdict(cfg.qc), "steps": list(cfg.qc.steps)}
+
+
 def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None,
                 images_only: bool = False, export: Outputs | None = None) -> _Graph:
     """The run's graph of store-aware steps (nothing is computed).
@@ -327,17 +344,10 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
     k_tie = step_key("tiepoints", [params.track_tol, names], match_keys)
     ties = node("tiepoints", k_tie, _tiepoints, store, k_tie, names, pairs, batches, params.track_tol, attrs,
                 out=[store.path("tiepoints", k_tie, "nc")])
-    nav = None
-    if cfg.navigation is not None:
-        n = cfg.navigation
-        nav = {"position_sigma": n.position_sigma, "attitude_sigma": n.attitude_sigma,
-               "position_rate_sigma": n.position_rate_sigma, "attitude_rate_sigma": n.attitude_rate_sigma,
-               "offset": n.offset, "drift": n.drift,
-               "offset_sigma": list(n.offset_sigma) if n.offset_sigma else None,
-               "drift_sigma": list(n.drift_sigma) if n.drift_sigma else None}
+    nav = navigation_args(cfg)
     groups = [im.group for im in cfg.images]
     points = str(cfg.points) if cfg.points is not None else None
-    qc = None if cfg.qc is None or not cfg.qc.steps else {**asdict(cfg.qc), "steps": list(cfg.qc.steps)}
+    qc = qc_args(cfg)
     # the reference DTMs: their parameters and their files' content (a changed DTM reruns the adjustment)
     terrain = [{"name": d.name, "path": str(d.path), "sigma": d.sigma, "slope_baseline": d.slope_baseline}
                for d in cfg.terrain]

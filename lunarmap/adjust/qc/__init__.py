@@ -182,12 +182,7 @@ def _best_pair_start(problem: BundleProblem, units_per_km: float) -> BundleProbl
     good = np.all(np.isfinite(Xb), axis=1)
     X[pts[good]] = Xb[good]
     # a pair of gross errors can intersect behind another camera of the point: keep those starts
-    with np.errstate(all="ignore"):
-        x = problem.model.project(problem.cam_params, o.cam_idx, X[o.pt_idx])
-    bad = np.zeros(problem.n_points, bool)
-    bad[o.pt_idx[~np.all(np.isfinite(x), axis=1)]] = True
-    X[bad] = problem.points[bad]
-    return dataclasses.replace(problem, points=X)
+    return _with_starts(problem, X)
 
 
 
@@ -212,6 +207,13 @@ def _consensus_start(problem: BundleProblem, cut: float = CONSENSUS_CUT,
     X = problem.points.copy()
     X[ok] = Xc[ok]
     # a pair can intersect behind another camera of its point: those keep their start
+    return _with_starts(problem, X)
+
+
+def _with_starts(problem: BundleProblem, X: np.ndarray) -> BundleProblem:
+    """The problem with points ``X``, except those a camera of theirs cannot project (behind it, or not
+    finite there), which keep their previous start."""
+    o = problem.obs
     with np.errstate(all="ignore"):
         x = problem.model.project(problem.cam_params, o.cam_idx, X[o.pt_idx])
     bad = np.zeros(problem.n_points, bool)
