@@ -506,6 +506,31 @@ def test_graph_stays_small_and_a_rerun_starts_no_cluster(example, serial, monkey
     assert {k for k, s in g2.stage_of.items() if s == "match"} == {k for k, s in graph.stage_of.items() if s == "match"}
 
 
+def test_the_steps_called_in_order_without_dask_fill_the_serial_run_s_store(example, serial, tmp_path):
+    """``engine.call_steps`` (the bench's ``steps`` baseline) calls the graph's own step functions: into a fresh
+    store they write every entry of the serial run under the same keys, with the same matches and points."""
+    import lunarmap.workflows.engine as eng
+    from lunarmap.workflows.store import Store
+
+    cfg = serial.config.__class__(**{**serial.config.__dict__, "output": tmp_path / "steps"})
+    store = Store(cfg.output / "store")
+    store.root.mkdir(parents=True)
+    seconds: dict[str, float] = {}
+    first = eng.build_graph(cfg, store, images_only=True)
+    done = eng.call_steps(first, seconds)
+    res = eng.call_steps(eng.build_graph(cfg, store, done=done), seconds)
+    assert set(seconds) == {"image", "match", "tiepoints", "adjust", "kernels", "rpc_adjusted"}
+    ref = serial.folder / "store"
+    for step in ("isd", "footprint", "rpc", "pyramid", "detect", "match", "tiepoints", "adjust", "rpc_adjusted"):
+        assert sorted(p.name for p in (store.root / step).iterdir()) == sorted(p.name for p in (ref / step).iterdir()), step
+    for p in (ref / "match").glob("*.npz"):
+        with np.load(p) as a, np.load(store.root / "match" / p.name) as b:
+            assert all(np.array_equal(a[k], b[k]) for k in a.files), p.name
+    adj = next(v for k, v in res.items() if k.startswith("adjust-"))
+    with xr.open_dataset(Path(adj.path) / "points.nc") as ds:
+        np.testing.assert_allclose(ds["xyz"].values, _points(serial), rtol=1e-9, atol=0)
+
+
 def test_a_pyramid_store_lost_mid_run_is_computed_again_with_the_same_results(example, serial, monkeypatch, caplog):
     """Pyramid stores deleted after the images' phase (or damaged) are computed again; results identical."""
     import logging

@@ -441,3 +441,51 @@ def test_derived_levels_read_level_0_once_per_region():
         assert np.array_equal(got, build_pyramid(img, k)[k][40 // f:200 // f, 8 // f:256 // f])
     assert len(calls) == 1
     assert np.array_equal(whole, build_pyramid(img, 1)[1])
+
+
+def test_a_second_pair_of_the_same_windowed_images_reads_no_pixel_again(pair, tmp_path):
+    # a worker's pairs share their images: the pyramid levels and the smoothed image of a windowed image are kept
+    # with it, so matching it again reads neither the image nor its stored pyramid, with the same matches
+    c1, c2, i1, i2 = pair
+    i1 = i1.astype(float).copy()
+    i1[0, 0] = np.nan                         # a pixel to mask: regions are read and cached, not viewed
+    pts = foerstner(i1, cell=12, per_cell=1)
+    p = MatchParams(search=12.0, saturation=255.0)
+    stores = [Pyramid(write_pyramid(ArraySource(im), tmp_path / f"{n}.nc", 4, saturation=255.0))
+              for n, im in (("a", i1), ("b", i2))]
+    reads = []
+
+    class Counting(PixelSource):
+        def read(self, l0, l1, s0, s1):
+            reads.append(self.path)
+            return super().read(l0, l1, s0, s1)
+
+    class CountingArray(ArraySource):
+        def read(self, l0, l1, s0, s1):
+            reads.append("level 0")
+            return super().read(l0, l1, s0, s1)
+
+    def counting(store):
+        level = store.level
+
+        def lev(k):
+            src = level(k)
+            src.__class__ = Counting
+            return src
+        store.level = lev
+        return store
+
+    a = WindowedImage(CountingArray(i1), 255.0, pyramid=counting(stores[0]))
+    b = WindowedImage(CountingArray(i2), 255.0, pyramid=counting(stores[1]))
+    assert a.pyramid(4)[1] is a.pyramid(4)[1] and a.smoothed(1.0) is a.smoothed(1.0)
+    first = match_points(a, b, c1, c2, pts.line, pts.sample, params=p)
+    assert "level 0" in reads and len(set(reads)) > 1    # the image and its stored levels were read the first time
+    n = len(reads)
+    again = match_points(a, b, c1, c2, pts.line, pts.sample, params=p)
+    assert len(reads) == n
+    fresh = match_points(WindowedImage(ArraySource(i1), 255.0, pyramid=stores[0]),
+                         WindowedImage(ArraySource(i2), 255.0, pyramid=stores[1]), c1, c2, pts.line, pts.sample,
+                         params=p)
+    for k in ("line2", "sample2", "sigma_line", "sigma_sample", "correlation", "status"):
+        assert np.array_equal(getattr(first, k), getattr(again, k), equal_nan=True), k
+        assert np.array_equal(getattr(fresh, k), getattr(again, k), equal_nan=True), k

@@ -154,6 +154,10 @@ class WindowedImage:
         self._parent = _parent
         self._owner = next(_OWNER)
         self.ndim = 2
+        # the smoothed images and pyramids made of this one, kept: each is a region-cache owner of its own, so
+        # a pair matched after another of this image reads their cached regions instead of the file again
+        # (a worker's pairs share their images); they hold no pixels outside the cache (bounded in bytes)
+        self._made: dict[tuple[str, float], Any] = {}
 
     # -- what the resamplers call ------------------------------------------------------------
     @property
@@ -263,13 +267,21 @@ class WindowedImage:
         """The same image smoothed by a Gaussian of ``sigma`` pixels (NaN-aware, as least-squares matching's)."""
         if sigma == self.smooth:
             return self
-        return WindowedImage(self.source, self.saturation, sigma, self.stored, _base=self._base, _level=self._level,
-                             _parent=self._parent)
+        key = ("smoothed", float(sigma))
+        made = self._made.get(key)
+        if made is None:
+            made = self._made[key] = WindowedImage(self.source, self.saturation, sigma, self.stored, _base=self._base,
+                                                   _level=self._level, _parent=self._parent)
+        return made
 
     def pyramid(self, levels: int) -> list["WindowedImage"]:
         """``[level 0 (this image), level 1, ...]``, at most ``levels`` reductions (``build_pyramid``'s rule)."""
         if self._level != 0:
             raise InvalidInputError("pyramid() is asked of level 0")
+        key = ("pyramid", float(levels))
+        made = self._made.get(key)
+        if made is not None:
+            return list(made)
         out = [self]
         shapes = pyramid_shapes(self.shape, levels)
         # each derived level reduces the raw (unsmoothed) level above it
@@ -283,6 +295,7 @@ class WindowedImage:
             out.append(lev)
             # a stored level's pixels are as stored (perhaps rounded): levels under it reduce level 0
             above = lev if lev._parent is not None else None
+        self._made[key] = tuple(out)
         return out
 
     def __del__(self) -> None:

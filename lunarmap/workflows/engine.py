@@ -136,6 +136,8 @@ class _Graph:
     outputs: dict[str, list[Path]] = field(default_factory=dict)   # dask key -> files the task writes
     jobs: dict[str, Any] = field(default_factory=dict)             # image -> its ImageJob (keys of its steps)
     heights: tuple[float, ...] = ()                                # of the footprints
+    # dask key -> (step function, its arguments): the same calls without dask (:func:`call_steps`)
+    calls: dict[str, tuple[Callable[..., Any], tuple[Any, ...]]] = field(default_factory=dict)
 
     def computes(self) -> bool:
         """Whether any task has an output missing from the store (else every task only reads it)."""
@@ -257,6 +259,7 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
     digest = cfg.digest()
     attrs = provenance(digest, kset.paths)
     tasks: dict[str, Any] = {}
+    calls: dict[str, tuple[Callable[..., Any], tuple[Any, ...]]] = {}
     stage_of: dict[str, str] = {}
     outputs: dict[str, list[Path]] = {}
 
@@ -269,6 +272,7 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
             # footprint and job in them for collections (1.9 of a 48-image rerun's 8 s, profiled)
             plain = [a if _has_task(a) else _Value(a) for a in args]
             tasks[name] = dask.delayed(_call, pure=False)(fn, *plain, dask_key_name=name)
+            calls[name] = (fn, args)
             stage_of[name] = stage
             outputs[name] = list(out)
         return tasks[name]
@@ -309,7 +313,7 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
                               export.subset(image_files(im.name, cfg.rpc_enabled)) if export is not None else None,
                               out=out)
     if images_only:
-        return _Graph(tasks, stage_of, names, [], outputs=outputs, jobs=jobs_of, heights=tuple(heights))
+        return _Graph(tasks, stage_of, names, [], outputs=outputs, jobs=jobs_of, heights=tuple(heights), calls=calls)
     candidates = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
     apart = 0
     if done is not None and all(isinstance(v, ImageDone) for v in image.values()):
@@ -380,7 +384,7 @@ def build_graph(cfg: RunConfig, store: Store, done: dict[str, Any] | None = None
             node("rpc_adjusted", step_key("rpc_adjusted_batch", None, [k for k, _ in group]), adjusted_rpc_batch,
                  store, group, adj, cfg.rpc_height_range, export.subset(rels) if export is not None else None,
                  out=[store.path("rpc_adjusted", k, "nc") for k, _ in group])
-    return _Graph(tasks, stage_of, names, pairs, apart, outputs, jobs_of, tuple(heights))
+    return _Graph(tasks, stage_of, names, pairs, apart, outputs, jobs_of, tuple(heights), calls)
 
 
 @dataclass
@@ -578,6 +582,32 @@ def _execute(graph: _Graph, scheduler: Any, progress: _Progress) -> dict[str, An
     """Compute every task of ``graph``; returns dask key -> result."""
     with _Heartbeat(progress):
         return _compute(graph, scheduler, progress)
+
+
+def call_steps(graph: _Graph, seconds: dict[str, float] | None = None) -> dict[str, Any]:
+    """Every step of ``graph`` called in this process, in the order the graph was built (upstream first),
+    without dask: the run's own step functions on the same store (the baseline of the scheduler's
+    overhead, ``bench/bench_run.py``). Returns dask key -> result, as the scheduler's; ``seconds``, when
+    given, gathers the wall time of the calls per stage (seconds)."""
+    from dask.delayed import Delayed
+
+    results: dict[str, Any] = {}
+
+    def value(a: Any) -> Any:
+        if isinstance(a, Delayed):
+            return results[a.key]
+        if isinstance(a, (list, tuple)) and any(isinstance(x, Delayed) for x in a):
+            return type(a)(value(x) for x in a)
+        return a
+
+    for name, (fn, args) in graph.calls.items():
+        t = time.perf_counter()
+        with dask.config.set(scheduler="sync"):        # as _call: what a step computes of its own, serially
+            results[name] = fn(*(value(a) for a in args))
+        if seconds is not None:
+            stage = graph.stage_of[name]
+            seconds[stage] = seconds.get(stage, 0.0) + time.perf_counter() - t
+    return results
 
 
 def _compute(graph: _Graph, scheduler: Any, progress: _Progress) -> dict[str, Any]:

@@ -14,6 +14,7 @@ import contextvars
 import functools
 import json
 import logging
+import threading
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -315,16 +316,57 @@ def isd_step(store: Store, key: str, name: str, label: str, metakernel: str) -> 
 
 def _camera(isd: Done) -> Any:
     """The camera of a stored ISD (cached per process: a camera is immutable and used by many pairs)."""
-    return _camera_of(*_stamp(isd.path))
+    return _CAMERAS.get(*_stamp(isd.path))
 
 
-# a few cameras per process: a batch's pairs share their images, and a full-size line scanner's lookup table is
-# ~29 MB (256 cached cameras of a long run would be 7 GB)
-@functools.lru_cache(maxsize=8)
-def _camera_of(path: str, size: int, mtime: int) -> Any:
-    from ..camera.factory import camera_from_isd_file
+class _CameraCache:
+    """The cameras of a process, least recently used first out, bounded in bytes (:data:`CAMERA_CACHE_BYTES`).
 
-    return camera_from_isd_file(path)
+    A match task's pairs (``a``, ``b_1`` ... ``b_k``) cycle through the other images of a site: with eight
+    cameras per process most pairs built one of theirs again from its ISD (11 ms of a 48-image run's
+    ~190 ms per pair). A full-size line scanner's lookup table is ~29 MB (576 bytes per line, built on
+    first use), a small image's camera tens of kB: counted by size, the cache holds a full-size block's
+    eight cameras as before and a long run's small cameras all.
+    """
+
+    def __init__(self, max_bytes: int) -> None:
+        from collections import OrderedDict
+
+        self.max_bytes = int(max_bytes)
+        self.entries: "OrderedDict[tuple[str, int, int], tuple[Any, int]]" = OrderedDict()
+        self.nbytes = 0
+        self.lock = threading.Lock()
+
+    def get(self, path: str, size: int, mtime: int) -> Any:
+        key = (path, size, mtime)
+        with self.lock:
+            hit = self.entries.get(key)
+            if hit is not None:
+                self.entries.move_to_end(key)
+                return hit[0]
+        from ..camera.factory import camera_from_isd_file
+
+        cam = camera_from_isd_file(path)
+        # the ISD's arrays (about its file's size) and a line scanner's per-line table (576 bytes a line)
+        cost = int(size) + 576 * int(getattr(cam, "n_lines", 0))
+        with self.lock:
+            if key not in self.entries:
+                self.entries[key] = (cam, cost)
+                self.nbytes += cost
+                while self.nbytes > self.max_bytes and len(self.entries) > 1:
+                    _, (_, c) = self.entries.popitem(last=False)
+                    self.nbytes -= c
+        return cam
+
+    def clear(self) -> None:
+        with self.lock:
+            self.entries.clear()
+            self.nbytes = 0
+
+
+#: Bytes of cameras a process keeps (estimated: :class:`_CameraCache`): eight full-size NAC-like cameras.
+CAMERA_CACHE_BYTES = 256 << 20
+_CAMERAS = _CameraCache(CAMERA_CACHE_BYTES)
 
 
 @_step("rpc", "nc")
