@@ -162,6 +162,21 @@ def test_variance_components_of_a_block_without_redundancy_are_a_named_error(res
         quality_control(resection_block, ("variance",), options=QCOptions(solver=OPTS))
 
 
+def test_variance_components_without_redundancy_raise_at_the_first_adjustment(resection_block, monkeypatch):
+    """r = 0 at the first adjustment is r = 0 at any weights (every redundancy number of an exactly determined
+    block is 0): the error comes from that adjustment, not after the round budget (it came after 60)."""
+    from lunarmap.adjust import variance
+    from lunarmap.errors import VarianceComponentError
+
+    calls = []
+    real = variance.solve
+    monkeypatch.setattr(variance, "solve", lambda *a, **k: calls.append(1) or real(*a, **k))
+    assert solve(resection_block, OPTS).redundancy == 0          # the oracle: 6 observations, 6 unknowns
+    with pytest.raises(VarianceComponentError, match="redundancy 0.00"):
+        variance.estimate_variance_components(resection_block, variance.observation_groups(resection_block), OPTS)
+    assert len(calls) == 1
+
+
 def test_a_point_behind_its_cameras_from_every_start_is_set_aside_not_fatal():
     sim = dlr_block(seed=1, example="blunders")
     pb = dlr_problem(sim)

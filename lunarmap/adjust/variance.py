@@ -362,7 +362,7 @@ def _weak_group(groups: ObservationGroups, r: NDArray, n: NDArray, j: int,
                 min_redundancy: float) -> VarianceComponentError:
     """The error for group ``j``, whose redundancy is too small for its variance component."""
     return VarianceComponentError(
-        f"group {groups.names[j]!r} has redundancy {r[j]:.2f} ({int(n[j])} observations): its variance "
+        f"group {groups.names[j]!r} has redundancy {max(float(r[j]), 0.0):.2f} ({int(n[j])} observations): its variance "
         f"component cannot be estimated (needs >= {min_redundancy:g}); merge it with another group, or "
         f"keep its a-priori sigma (on_weak='keep')")
 
@@ -430,7 +430,11 @@ def estimate_variance_components(problem: BundleProblem, groups: ObservationGrou
     cam, pts = (None, None) if start is None else (start.cam_params, start.points)
     result = solve(reweighted_problem(problem, w, cam, pts, terms), opts)
     f, r, _, n = group_variance_factors(result, groups)
-    few = est & (n <= min_redundancy)          # a group's redundancy never exceeds its observation count
+    # a group's redundancy never exceeds its observation count; and one with (numerically) none at the first
+    # adjustment has none at any weights: an observation with redundancy number 0 is one the parameters need
+    # (h_ii = 1 whatever the positive weights), so iterating cannot give it any (a block with r = 0 spent its
+    # whole round budget before the error)
+    few = est & ((n <= min_redundancy) | ~(r > 1e-9 * np.maximum(n, 1)))
     if few.any():
         if on_weak == "raise":
             raise _weak_group(groups, r, n, int(np.argmax(few)), min_redundancy)
