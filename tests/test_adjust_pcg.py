@@ -148,3 +148,15 @@ def test_phase_timer_counts_each_phase_of_the_iteration(weak, monkeypatch):
             with phase("inner"):
                 pass
     assert t2.cpu == {"outer": 2.0, "inner": 1.0} and t2.wall == {"outer": 2.0, "inner": 1.0}
+
+
+def test_an_inexact_step_does_not_stop_the_solve_before_the_minimum(weak):
+    """A loose PCG step decreases the cost little because it is inexact, not because the minimum is near: the
+    ftol stop is checked with a near-exact step (oracle: the direct solve to ftol 1e-10; before the check,
+    three CG iterations per step stopped 2.6e-5 above it, the direct solver's own ftol-1e-6 stop 7e-7)."""
+    best = solve(weak, SolverOptions(linear_solver="direct", ftol=1e-10)).cost
+    direct = solve(weak, SolverOptions(linear_solver="direct", ftol=1e-6)).cost
+    loose = solve(weak, SolverOptions(linear_solver="pcg", pcg_tolerance=0.5, pcg_max_iterations=3, ftol=1e-6,
+                                      max_iterations=500))
+    assert loose.converged
+    assert loose.cost - best <= 2.0 * max(direct - best, 1e-9 * best)
