@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import sys
 import threading
 from typing import Callable, Iterator
 
@@ -33,15 +32,36 @@ _lock = threading.Lock()
 _depth = 0
 _saved: list[int] | None = None
 _api: list[tuple[Callable[[], int], Callable[[int], None]]] | None = None  # None: not looked up yet
+_paths: frozenset[str] = frozenset()
+_held: list[tuple[Callable[[], int], Callable[[int], None]]] = []   # the libraries the outermost block set
 
 
-def _find_api() -> list[tuple[Callable[[], int], Callable[[int], None]]]:
-    """(get, set) thread-count functions of every OpenBLAS in the process (numpy and scipy each ship one)."""
+def _current_api() -> list[tuple[Callable[[], int], Callable[[int], None]]]:
+    """The thread-count functions of the OpenBLAS libraries loaded now: looked up again whenever a library was
+    loaded since (scipy.linalg's own, or a third one another package brings: a cached list would leave it
+    at its own count)."""
+    global _api, _paths
+    paths = _openblas_paths()
+    if _api is None or paths != _paths:
+        _api, _paths = _find_api(paths), paths
+    return _api
+
+
+def _openblas_paths() -> frozenset[str]:
+    """The OpenBLAS libraries mapped into the process now (~0.5 ms to read ``/proc/self/maps``)."""
     try:
         with open("/proc/self/maps", encoding="ascii", errors="replace") as fh:
-            paths = {ln.split()[-1] for ln in fh if "openblas" in ln.lower() and ln.split()[-1].startswith("/")}
+            return frozenset(ln.split()[-1] for ln in fh
+                             if "openblas" in ln.lower() and ln.split()[-1].startswith("/"))
     except OSError:
-        return []
+        return frozenset()
+
+
+def _find_api(paths: frozenset[str] | None = None) -> list[tuple[Callable[[], int], Callable[[int], None]]]:
+    """(get, set) thread-count functions of every OpenBLAS in the process (numpy and scipy each ship one; other
+    packages may load more later)."""
+    if paths is None:
+        paths = _openblas_paths()
     found = []
     for path in sorted(paths):
         try:
@@ -63,13 +83,12 @@ def _find_api() -> list[tuple[Callable[[], int], Callable[[int], None]]]:
 @contextlib.contextmanager
 def single_threaded_blas() -> Iterator[None]:
     """Context in which OpenBLAS uses one thread; restores the previous count on exit."""
-    global _depth, _saved, _api
+    global _depth, _saved, _held
     with _lock:
-        if _api is None:
-            _api = _find_api()
         if _depth == 0:
-            _saved = [int(get()) for get, _ in _api]
-            for _, put in _api:
+            _held = _current_api()
+            _saved = [int(get()) for get, _ in _held]
+            for _, put in _held:
                 put(1)
         _depth += 1
     try:
@@ -78,11 +97,9 @@ def single_threaded_blas() -> Iterator[None]:
         with _lock:
             _depth -= 1
             if _depth == 0 and _saved is not None:
-                for (_, put), n in zip(_api, _saved):
+                for (_, put), n in zip(_held, _saved):
                     put(n)
                 _saved = None
-                if "scipy.linalg" not in sys.modules:
-                    _api = None     # scipy's own OpenBLAS is loaded with scipy.linalg: look again next time
 
 
 @contextlib.contextmanager
@@ -94,13 +111,11 @@ def blas_threads(n: int) -> Iterator[None]:
     holds it this block changes nothing. OpenBLAS started with ``OPENBLAS_NUM_THREADS=1`` (dask workers)
     starts its extra threads when asked for them.
     """
-    global _depth, _saved, _api
+    global _saved
     n = max(1, int(n))
     mine: list[int] | None = None
     with _lock:
-        if _api is None:
-            _api = _find_api()
-        api = _api
+        api = _current_api()
         if _depth == 0:
             mine = [int(get()) for get, _ in api]
             for _, put in api:
@@ -113,5 +128,5 @@ def blas_threads(n: int) -> Iterator[None]:
                 if _depth == 0:
                     for (_, put), k in zip(api, mine):
                         put(k)
-                elif _saved is not None:
+                elif _saved is not None and _held is api:
                     _saved = mine       # a single-threaded block of another thread restores the original count

@@ -521,10 +521,13 @@ def test_the_steps_called_in_order_without_dask_fill_the_serial_run_s_store(exam
     res = eng.call_steps(eng.build_graph(cfg, store, done=done), seconds)
     assert set(seconds) == {"image", "match", "tiepoints", "adjust", "kernels", "rpc_adjusted"}
     ref = serial.folder / "store"
+    # the serial run's store also holds what other tests of this module computed into it (their QC or
+    # navigation variants): every entry of the steps must be there under the same key
     for step in ("isd", "footprint", "rpc", "pyramid", "detect", "match", "tiepoints", "adjust", "rpc_adjusted"):
-        assert sorted(p.name for p in (store.root / step).iterdir()) == sorted(p.name for p in (ref / step).iterdir()), step
-    for p in (ref / "match").glob("*.npz"):
-        with np.load(p) as a, np.load(store.root / "match" / p.name) as b:
+        mine = {p.name for p in (store.root / step).iterdir()}
+        assert mine and mine <= {p.name for p in (ref / step).iterdir()}, step
+    for p in (store.root / "match").glob("*.npz"):
+        with np.load(ref / "match" / p.name) as a, np.load(p) as b:
             assert all(np.array_equal(a[k], b[k]) for k in a.files), p.name
     adj = next(v for k, v in res.items() if k.startswith("adjust-"))
     with xr.open_dataset(Path(adj.path) / "points.nc") as ds:
