@@ -24,25 +24,26 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import sys
 import time
 from dataclasses import dataclass
 
 import numpy as np
-import xarray as xr
 
 import lunarmap
 from lunarmap.adjust import (
-    ControlNetwork,
     LaserAltimetry,
-    NavigationSpec,
     SolverOptions,
     intersect_points,
-    merge_networks,
-    network_from_tiepoints,
 )
 from lunarmap.camera.geodesy import enu_basis, xyz_to_lonlat_height
 from lunarmap.camera.shape import MOON_RADIUS
-from lunarmap.simulate import altimetry_tracks, frame_block, frame_block_height
+from lunarmap.simulate import altimetry_tracks, frame_block_height
+
+# the test block of tests/test_adjust_altimetry.py, with this script's size and terrain
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
+import test_adjust_altimetry as T  # noqa: E402
 
 
 @dataclass
@@ -77,34 +78,12 @@ def cratered_height(seed: int, relief: float):
 def build(seed: int, cfg: Config):
     height = (cratered_height(seed, cfg.relief) if cfg.terrain == "cratered"
               else (lambda lo, la: frame_block_height(lo, la, cfg.relief)))
-    sb = frame_block(orbits=2, per_orbit=cfg.per_orbit, points=cfg.points, n_control=0, n_check=cfg.n_check,
-                     seed=seed, relief=cfg.relief, cameras=2, tilt_deg=(-15.0, 15.0), forward_overlap=0.3,
-                     height=height)
-    m = sb.measurements
-    names = [f"img{i:02d}" for i in range(len(sb.nav_cameras))]
-    chk = np.zeros(sb.true_points.shape[0], bool)
-    chk[sb.check] = True
-    tie = ~chk[m.pt_idx]
-    ties = xr.Dataset({"point_id": ("observation", m.pt_idx[tie]), "image_id": ("observation", m.cam_idx[tie]),
-                       "line": ("observation", m.xy[tie, 0]), "sample": ("observation", m.xy[tie, 1]),
-                       "sigma_line": ("observation", np.full(tie.sum(), m.sigma)),
-                       "sigma_sample": ("observation", np.full(tie.sum(), m.sigma))}, coords={"image": names})
-    sel = np.isin(m.pt_idx, sb.check)
-    remap = {int(j): k for k, j in enumerate(sb.check)}
-    cnet = ControlNetwork([f"C{j}" for j in sb.check], ["check"] * sb.check.size, sb.true_points[sb.check],
-                          [remap[int(j)] for j in m.pt_idx[sel]], m.cam_idx[sel], m.xy[sel],
-                          np.full((sel.sum(), 2), m.sigma), names)
-    net = merge_networks(network_from_tiepoints(ties), cnet)
-    spec = NavigationSpec(orbit=dict(zip(names, sb.orbit.tolist())), position_sigma=sb.nav_sigma[3],
-                          attitude_sigma=sb.nav_sigma[0], offset="observed", drift="observed",
-                          offset_sigma=sb.offset_sigma, drift_sigma=sb.drift_sigma)
-    truth = sb.true_points[[int(str(p).replace("tp", "").replace("C", "")) for p in net.point_id]]
+    sb, net, sensors, spec, times, truth = T._block(seed, per_orbit=cfg.per_orbit, points=cfg.points,
+                                                     n_check=cfg.n_check, relief=cfg.relief, height=height)
     lon, lat, _ = xyz_to_lonlat_height(sb.true_points, MOON_RADIUS)
     sim = altimetry_tracks(height, (lon.min(), lon.max()), (lat.min(), lat.max()), cfg.tracks,
                            along_track_m=cfg.along_m, sigma=cfg.shot_sigma, offset_sigma=cfg.offset_sigma,
                            heading_deg=20.0, seed=seed)
-    sensors = dict(zip(names, sb.nav_cameras))
-    times = {n: float(t) for n, t in zip(names, sb.times)}
     return sb, net, sensors, spec, times, truth, sim, height
 
 

@@ -38,10 +38,12 @@ OFFSET_SIGMA = 30.0
 ALONG_M = 1140.0
 
 
-def _block(seed: int):
-    """Fore/aft frame block, no control points, check points, navigation with per-orbit errors."""
-    sb = frame_block(orbits=2, per_orbit=8, points=300, n_control=0, n_check=15, seed=seed, relief=RELIEF,
-                     cameras=2, tilt_deg=(-15.0, 15.0), forward_overlap=0.3)
+def _block(seed: int, per_orbit: int = 8, points: int = 300, n_check: int = 15, relief: float = RELIEF,
+           height=None):
+    """Fore/aft frame block, no control points, check points, navigation with per-orbit errors (also the
+    block of ``bench/altimetry_datum.py``, which varies its size and terrain ``height(lon, lat)``)."""
+    sb = frame_block(orbits=2, per_orbit=per_orbit, points=points, n_control=0, n_check=n_check, seed=seed,
+                     relief=relief, cameras=2, tilt_deg=(-15.0, 15.0), forward_overlap=0.3, height=height)
     m = sb.measurements
     names = [f"img{i:02d}" for i in range(len(sb.nav_cameras))]
     chk = np.zeros(sb.true_points.shape[0], bool)
