@@ -530,7 +530,7 @@ def posterior_precision(result, method: str = "auto", redundancy: bool = False,
     DatumDefectError
         If the normal equations at the solution are singular.
     """
-    from .normal import Terms, linearize, reduced_system
+    from .normal import Terms, reduced_system
 
     pb = result.problem
     st = result.structure
@@ -546,9 +546,7 @@ def posterior_precision(result, method: str = "auto", redundancy: bool = False,
     if not getattr(st, "compiled", False):
         raise ValueError("the sparse precision method needs the compiled Schur structure (numba)")
     p = st.p
-    terms = Terms(pb)
-    fixed_pt = pb.point_fixed()
-    lin = linearize(pb, result.state, st, terms, fixed_pt)
+    terms, fixed_pt, lin = _linearized(result)
     undetermined = _regularize_undetermined_points(lin.V, ~fixed_pt, undetermined_ratio)
     S, _, Vinv, _ = reduced_system(lin, st, terms, 0.0, result.free_red)
     inv = reduced_inverse(S, result.free_red, st.block_row, st.block_col, p, st.n_cam, backend=backend,
@@ -699,16 +697,25 @@ def _dense_spd_inverse(N: NDArray) -> NDArray:
     return Q
 
 
+def _linearized(result) -> tuple:
+    """The adjustment's terms, fixed-point mask and its linearisation at the solution (every precision method
+    starts from them)."""
+    from .normal import Terms, linearize
+
+    pb = result.problem
+    terms = Terms(pb)
+    fixed_pt = pb.point_fixed()
+    return terms, fixed_pt, linearize(pb, result.state, result.structure, terms, fixed_pt)
+
+
 def _dense_precision(result, redundancy: bool, scale_by_sigma0: bool) -> Precision:
     """Reference implementation: dense LAPACK inverse of the whole reduced system."""
-    from .normal import Terms, linearize, reduced_system
+    from .normal import reduced_system
 
     pb = result.problem
     st = result.structure
     p = st.p
-    terms = Terms(pb)
-    fixed_pt = pb.point_fixed()
-    lin = linearize(pb, result.state, st, terms, fixed_pt)
+    terms, fixed_pt, lin = _linearized(result)
     S, _, Vinv, _ = reduced_system(lin, st, terms, 0.0, result.free_red)
     W = lin.W if lin.W is not None else np.einsum("nki,nkj->nij", lin.Ac, lin.Ap)
     F = np.matmul(W, Vinv[pb.obs.pt_idx])
@@ -767,14 +774,12 @@ def _coupled_precision(result, redundancy: bool, scale_by_sigma0: bool) -> Preci
     """Precision of a problem with point-coupling terms (:attr:`~lunarmap.adjust.normal.Terms.coupled`): the
     dense inverse of the whole normal matrix ``A^T A`` (reduced unknowns and points; Jacobi-scaled Cholesky),
     redundancy numbers ``1 - a_i^T Q a_i`` of every row from the sparse design in chunks."""
-    from .normal import Terms, full_design, linearize, prior_terms
+    from .normal import full_design, prior_terms
 
     pb = result.problem
     st = result.structure
     p = st.p
-    terms = Terms(pb)
-    fixed_pt = pb.point_fixed()
-    lin = linearize(pb, result.state, st, terms, fixed_pt)
+    terms, fixed_pt, lin = _linearized(result)
     A, _ = full_design(lin, pb, terms, fixed_pt)
     n_red = result.free_red.size
     free = np.concatenate([result.free_red, np.repeat(~fixed_pt, 3)])
